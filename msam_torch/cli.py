@@ -1,0 +1,80 @@
+"""Command line: ``msam run CONFIG [--out DIR] [key=value ...]``.
+
+Errors in the user's input print one line naming the place (key, file, column, row) and exit
+with status 2, without a traceback. Nothing is written unless the run succeeds.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from . import __version__
+from .config import dump_config, load_config
+from .errors import MSAMError
+
+EXIT_INPUT_ERROR = 2
+
+
+def _run(args) -> int:
+    from tqdm.auto import tqdm
+
+    from .api import adapt, candidate_label
+    from .tracking import TensorBoardTracker
+
+    config = load_config(args.config, args.overrides)
+    out = Path(args.out or Path("runs") / Path(args.config).stem)
+    tracker = None if args.no_tensorboard else TensorBoardTracker(out / "tensorboard")
+    bars = []
+
+    def on_trainer(trainer, equation):
+        total = None
+        bar = tqdm(desc=equation.target, unit="step", disable=args.quiet or not sys.stderr.isatty(), leave=False)
+        bars.append(bar)
+        trainer.add_callback("round_robin_step", lambda t, **p: bar.update(1))
+        trainer.add_callback("refinement_step", lambda t, **p: bar.update(1))
+        if tracker is not None:
+            tracker.attach(trainer, equation.target, lambda c: ", ".join(candidate_label(equation, c)))
+
+    try:
+        result = adapt(config, on_trainer=on_trainer)
+    finally:
+        for bar in bars:
+            bar.close()
+        if tracker is not None:
+            tracker.save_config(dump_config(config))
+            tracker.close()
+    path = result.save(out / "result.json")
+    for eq in result.equations:
+        print(f"starting: {eq.start_equation}")
+        print(f"adapted:  {eq.equation}")
+        print(f"  sum|eps| {eq.start['sum_abs_error']:.4g} -> {eq.final['sum_abs_error']:.4g}, "
+              f"rho {eq.start['rho']:.4f} -> {eq.final['rho']:.4f}, "
+              f"{len(eq.ranking)} candidates, {eq.diverged} diverged")
+    print(f"wrote {path}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="msam", description="Model Structure Adaptation Method (MSAM) with PyTorch.")
+    parser.add_argument("--version", action="version", version=f"msam-torch {__version__}")
+    commands = parser.add_subparsers(dest="command", required=True)
+    run = commands.add_parser("run", help="adapt the model of CONFIG to its data and print the adapted equations")
+    run.add_argument("config", help="YAML config (see configs/)")
+    run.add_argument("overrides", nargs="*", help="config overrides such as adaptation.step_size=one")
+    run.add_argument("--out", help="output folder (default runs/<config name>)")
+    run.add_argument("--no-tensorboard", action="store_true", help="do not write TensorBoard event files")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.set_defaults(handler=_run)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
+    try:
+        return args.handler(args)
+    except MSAMError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_INPUT_ERROR
+
+
+if __name__ == "__main__":
+    sys.exit(main())

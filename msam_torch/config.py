@@ -1,0 +1,131 @@
+"""YAML config -> validated, typed config; ``key=value`` overrides; the resolved config.
+
+A config has three sections: ``model`` (the starting model, see :mod:`msam_torch.spec`), ``data``
+(where the measurements come from) and ``adaptation`` (the MSAM options). Unknown keys, wrong
+types and malformed YAML raise :class:`~msam_torch.errors.ConfigError` naming the key path.
+Values are data: YAML is read with ``yaml.safe_load`` and no string is ever executed.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal, Optional, Union
+
+import pydantic
+import yaml
+from pydantic import BaseModel, ConfigDict, Field
+
+from .errors import ConfigError
+
+Number = Union[float, int]
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ComponentConfig(_Section):
+    """One component ``theta * M`` of a state equation (Eq. 2)."""
+
+    term: str = Field(description="M_i: a product of states, inputs and derivatives, e.g. 'x_dot'")
+    theta: Union[str, Number] = Field(description="nominal theta_i, a number or an expression of parameters")
+    adjustable: bool = Field(True, description="whether MSAM may adjust this component (Eq. 8)")
+    start: Optional[Number] = Field(None, description="starting exponent (default 0)")
+
+
+class EquationConfig(_Section):
+    """One state equation: its target derivative, components and adjustment set F."""
+
+    target: str
+    components: list[ComponentConfig] = Field(min_length=1)
+    adjustments: list[str] = Field(min_length=1, description="adjustment functions f; abs(.) -> |f|^g, else sign(f)|f|^g")
+
+
+class ModelConfig(_Section):
+    states: list[str] = Field(min_length=1)
+    inputs: list[str] = []
+    parameters: dict[str, Number] = {}
+    equations: list[EquationConfig] = Field(min_length=1)
+
+
+class DataConfig(_Section):
+    """Where the measurements come from: a simulated controlled case or a file."""
+
+    system: Optional[str] = Field(None, description="name of a simulated system in msam_torch.systems")
+    parametric_error: float = Field(0.0, ge=0, description="total relative error of the nominal parameters")
+    noise: float = Field(0.0, ge=0, description="measurement noise, as a fraction of each signal's std")
+    seed: int = 0
+    derivatives: Literal["exact", "savgol", "spline", "loess", "finite_difference"] = "exact"
+    window: Optional[int] = Field(None, ge=3, description="derivative estimator window, in samples")
+
+
+class AdaptationConfig(_Section):
+    """Options of Algorithm 1 and the step (Eq. 16-20)."""
+
+    round_robin_steps: int = Field(15, ge=1, description="I1")
+    refinement_steps: int = Field(70, ge=0, description="I2")
+    dgamma: float = Field(1e-2, gt=0, description="exponent perturbation of Eq. 15-16")
+    scaling: Literal["dm", "gauss_newton"] = Field("dm", description="step in dM-scaled units (Eq. 16-18) or in exponent units")
+    step_size: Literal["eq20", "one", "line_search"] = Field("eq20", description="mu by Eq. 20, mu = 1, or backtracking")
+    theta: Literal["fixed", "varpro"] = Field("fixed", description="nominal theta, or re-solved each step (variable projection)")
+    normalize: Literal["none", "rms"] = Field("none", description="divide each adjustment function by its RMS")
+    damping: float = Field(0.0, ge=0, description="Levenberg-Marquardt damping of the step")
+    gamma_limit: float = Field(20.0, gt=0, description="|gamma| beyond which a candidate is marked diverged")
+    chunk_size: int = Field(4096, ge=1, description="candidates per batched chunk (bounds memory)")
+    dtype: Literal["float64", "float32"] = "float64"
+    device: str = "cpu"
+
+
+class Config(_Section):
+    model: ModelConfig
+    data: DataConfig = DataConfig()
+    adaptation: AdaptationConfig = AdaptationConfig()
+
+
+def load_config(source: Union[str, Path, dict], overrides: list[str] = ()) -> Config:
+    """Read a YAML file (or a dict), apply ``key.path=value`` overrides, validate."""
+    if isinstance(source, dict):
+        raw, origin = source, "config"
+    else:
+        path = Path(source)
+        origin = str(path)
+        try:
+            raw = yaml.safe_load(path.read_text())
+        except FileNotFoundError:
+            raise ConfigError("", f"{path}: no such config file") from None
+        except yaml.YAMLError as exc:
+            raise ConfigError("", f"{path}: malformed YAML: {exc}") from None
+        if not isinstance(raw, dict):
+            raise ConfigError("", f"{path}: the top level must be a mapping")
+    raw = _apply_overrides(raw, overrides)
+    try:
+        return Config.model_validate(raw)
+    except pydantic.ValidationError as exc:
+        error = exc.errors()[0]
+        key = ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in error["loc"]).replace(".[", "[")
+        raise ConfigError(key, f"{error['msg']} (in {origin})") from None
+
+
+def _apply_overrides(raw: dict, overrides) -> dict:
+    import copy
+
+    raw = copy.deepcopy(raw)
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(item, "an override must look like key.path=value")
+        node = raw
+        parts = key.split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(key, f"{part!r} is not a section")
+        try:
+            node[parts[-1]] = yaml.safe_load(value)
+        except yaml.YAMLError as exc:
+            raise ConfigError(key, f"malformed value {value!r}: {exc}") from None
+    return raw
+
+
+def dump_config(config: Config) -> str:
+    """The fully resolved config as YAML (defaults filled in)."""
+    return yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)

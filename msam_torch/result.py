@@ -1,0 +1,114 @@
+"""Results as values: the adapted equation in the paper's notation and ``result.json``.
+
+``result.json`` schema (documented in the README):
+``{"version": 1, "config": {...resolved config...}, "data": {...provenance...},
+"equations": [EquationResult.to_dict(), ...]}``.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from .spec import Equation
+
+
+def _number(value: float) -> str:
+    return f"{value:.4g}"
+
+
+def format_component(equation: Equation, index: int, function: int | None, gamma: float | None) -> str:
+    """``x_dot|x_dot|^1.000`` (magnitude) or ``x1 sgn(x3)|x3|^1.000`` (signed); unadjusted: ``u``."""
+    term = equation.components[index].term.text
+    if function is None:
+        return term
+    f = equation.adjustments[function]
+    inner = f.inner_text
+    inner = inner if inner.isidentifier() else f"({inner})"
+    adjustment = f"|{inner}|^{gamma:.3f}" if f.is_magnitude else f"sgn({inner})|{inner}|^{gamma:.3f}"
+    return f"{term}{adjustment}" if term.isidentifier() and f.is_magnitude else f"{term} {adjustment}"
+
+
+def format_equation(target: str, thetas: list[float], terms: list[str]) -> str:
+    """``x_ddot = -26.13 x_dot|x_dot|^1.000 - 346.7 x|x|^2.000 + 0.002667 u``."""
+    parts = []
+    for theta, term in zip(thetas, terms):
+        sign = "-" if theta < 0 else "+"
+        body = f"{_number(abs(theta))} {term}"
+        parts.append(f"{sign} {body}" if parts else (f"-{body}" if theta < 0 else body))
+    return f"{target} = " + " ".join(parts)
+
+
+@dataclass(frozen=True)
+class EquationResult:
+    """The outcome for one state equation (one trial).
+
+    ``adjustments``: per component, the selected function text or null (fixed component);
+    ``exponents``: per component, the final gamma or null; ``theta``: final theta per component;
+    ``start``, ``final``: ``fitness``, ``sum_abs_error``, ``rho``;
+    ``ranking``: every candidate with its adjustments and best round-robin fitness, best first;
+    ``diverged``: number of candidates marked diverged and skipped.
+    """
+
+    target: str
+    equation: str
+    start_equation: str
+    adjustments: list
+    exponents: list
+    theta: list
+    start: dict
+    final: dict
+    ranking: list
+    diverged: int
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """All state equations of a run; ``str()`` prints the adapted equations."""
+
+    equations: list[EquationResult]
+    config: dict
+    data: dict
+
+    def __str__(self) -> str:
+        return "\n".join(e.equation for e in self.equations)
+
+    def to_dict(self) -> dict:
+        return {"version": 1, "config": self.config, "data": self.data,
+                "equations": [e.to_dict() for e in self.equations]}
+
+    def save(self, path: str | Path) -> Path:
+        """Write JSON atomically (temporary file, then rename)."""
+        return write_atomic(path, json.dumps(_finite(self.to_dict()), indent=2))
+
+
+def _finite(value):
+    """JSON has no inf/nan: write them as strings."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    return value
+
+
+def write_atomic(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` via a temporary file in the same folder and ``os.replace``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as handle:
+            handle.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
