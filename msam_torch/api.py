@@ -1,13 +1,14 @@
 """The Python entry point: ``adapt(config)`` runs MSAM on every state equation of a config."""
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Callable
 
 import torch
 
 from .candidates import EquationData
 from .config import Config, load_config
-from .data import load_signals
+from .data import load_datasets
 from .result import EquationResult, RunResult, format_component, format_equation
 from .spec import Equation, ModelSpec
 from .step import StepOptions
@@ -33,15 +34,20 @@ def nominal_parameters(config: Config, spec: ModelSpec) -> dict:
 
 
 def adapt(config: Config | dict | str, overrides: list[str] = (),
-          on_trainer: Callable[[Trainer, Equation], None] | None = None) -> RunResult:
-    """Run Algorithm 1 on each state equation; ``on_trainer`` may attach callbacks."""
+          on_trainer: Callable[[Trainer, Equation], None] | None = None, base_dir: str | Path | None = None) -> RunResult:
+    """Run Algorithm 1 on each state equation; ``on_trainer`` may attach callbacks.
+
+    Data file paths are relative to ``base_dir`` (default: the config file's folder)."""
+    if base_dir is None:
+        base_dir = Path(config).parent if isinstance(config, (str, Path)) else Path(".")
     if not isinstance(config, Config):
         config = load_config(config, overrides)
     spec = ModelSpec.from_config(config.model)
     dtype = getattr(torch, config.adaptation.dtype)
     device = torch.device(config.adaptation.device)
-    signals, provenance = load_signals(config.data, spec, dtype=dtype)
-    signals = {k: v.to(device) for k, v in signals.items()}
+    train, validation = load_datasets(config.data, spec, base_dir, dtype=dtype)
+    signals = {k: v.to(device) for k, v in train.signals.items()}
+    provenance = train.info
     parameters = nominal_parameters(config, spec)
     results = []
     for equation in spec.equations:

@@ -38,7 +38,7 @@ def _run(args) -> int:
             tracker.attach(trainer, equation.target, lambda c: ", ".join(candidate_label(equation, c)))
 
     try:
-        result = adapt(config, on_trainer=on_trainer)
+        result = adapt(config, on_trainer=on_trainer, base_dir=Path(args.config).parent)
     finally:
         for bar in bars:
             bar.close()
@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("--no-tensorboard", action="store_true", help="do not write TensorBoard event files")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.set_defaults(handler=_run)
-    args = parser.parse_args(argv)
+    args = parser.parse_intermixed_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
     try:
         return args.handler(args)

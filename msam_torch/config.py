@@ -47,14 +47,30 @@ class ModelConfig(_Section):
     equations: list[EquationConfig] = Field(min_length=1)
 
 
+class RangeConfig(_Section):
+    """A slice of the record, by time (default) or by sample index; bounds inclusive, open if null."""
+
+    start: Optional[float] = None
+    stop: Optional[float] = None
+    by: Literal["time", "index"] = "time"
+
+
 class DataConfig(_Section):
-    """Where the measurements come from: a simulated controlled case or a file."""
+    """Where the measurements come from: a simulated controlled case or a measured data file."""
 
     system: Optional[str] = Field(None, description="name of a simulated system in msam_torch.systems")
+    file: Optional[str] = Field(None, description="CSV or Parquet file, relative to the config file")
+    validation_file: Optional[str] = Field(None, description="held-out record (default: the validation range of 'file')")
+    time: Optional[str] = Field(None, description="time column (or give sample_time)")
+    sample_time: Optional[float] = Field(None, gt=0, description="sampling period when there is no time column")
+    columns: dict[str, str] = Field({}, description="signal name -> column name, for every measured signal")
+    train: RangeConfig = RangeConfig()
+    validation: Optional[RangeConfig] = None
     parametric_error: float = Field(0.0, ge=0, description="total relative error of the nominal parameters")
-    noise: float = Field(0.0, ge=0, description="measurement noise, as a fraction of each signal's std")
+    noise: float = Field(0.0, ge=0, description="simulated measurement noise, as a fraction of each signal's std")
     seed: int = 0
-    derivatives: Literal["exact", "savgol", "spline", "loess", "finite_difference"] = "exact"
+    derivatives: Literal["exact", "savgol", "spline", "loess", "finite_difference"] = Field(
+        "exact", description="how unmeasured derivatives are estimated ('exact': simulated systems only)")
     window: Optional[int] = Field(None, ge=3, description="derivative estimator window, in samples")
 
 
