@@ -67,7 +67,12 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("--no-tensorboard", action="store_true", help="do not write TensorBoard event files")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.set_defaults(handler=_run)
-    args = parser.parse_intermixed_args(argv)
+    args, extra = parser.parse_known_args(argv)  # overrides may follow options
+    unknown = [e for e in extra if e.startswith("-") or "=" not in e]
+    if unknown:
+        parser.error(f"unrecognized arguments: {' '.join(unknown)}")
+    if extra:
+        args.overrides = list(getattr(args, "overrides", [])) + extra
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
     try:
         return args.handler(args)
