@@ -29,7 +29,6 @@ def _run(args) -> int:
     bars = []
 
     def on_trainer(trainer, equation):
-        total = None
         bar = tqdm(desc=equation.target, unit="step", disable=args.quiet or not sys.stderr.isatty(), leave=False)
         bars.append(bar)
         trainer.add_callback("round_robin_step", lambda t, **p: bar.update(1))
@@ -43,8 +42,9 @@ def _run(args) -> int:
         for bar in bars:
             bar.close()
         if tracker is not None:
-            tracker.save_config(dump_config(config))
             tracker.close()
+    if tracker is not None:
+        tracker.save_config(dump_config(config))
     path = result.save(out / "result.json")
     for eq in result.equations:
         print(f"starting: {eq.start_equation}")

@@ -31,7 +31,6 @@ _BINARY = {
     ast.Mult: lambda a, b: a * b,
     ast.Div: lambda a, b: a / b,
     ast.Pow: lambda a, b: a**b,
-    ast.BitXor: lambda a, b: a**b,
 }
 _MAX_LENGTH = 500
 
@@ -71,8 +70,8 @@ def parse(text, key: str, allowed: frozenset[str] | set[str]) -> Expression:
         raise ConfigError(key, "empty expression")
     if len(text) > _MAX_LENGTH:
         raise ConfigError(key, f"expression longer than {_MAX_LENGTH} characters")
-    try:
-        tree = ast.parse(text, mode="eval").body
+    try:  # '^' is power with power's precedence (Python would parse it as a low-precedence XOR)
+        tree = ast.parse(text.replace("^", "**"), mode="eval").body
     except (SyntaxError, ValueError) as exc:
         raise ConfigError(key, f"cannot parse expression {text!r}: {exc.msg if hasattr(exc, 'msg') else exc}") from None
     names: set[str] = set()

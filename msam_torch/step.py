@@ -68,9 +68,11 @@ class StepResult:
 def lstsq(a: torch.Tensor, b: torch.Tensor, damping: float = 0.0, rcond: float = 1e-12) -> torch.Tensor:
     """Rank-tolerant least squares ``argmin ||a x - b||`` batched over leading axes.
 
-    Columns are equilibrated, the normal equations solved by a symmetric eigendecomposition with
-    eigenvalues below ``rcond * max`` dropped (minimum-norm solution on collinear or zero
-    columns), and ``damping`` adds ``lambda I`` (Levenberg-Marquardt). a: (..., N, K), b: (..., N).
+    Columns are scaled to unit norm and the normal equations solved by a symmetric
+    eigendecomposition with eigenvalues below ``rcond * max`` dropped: on collinear or zero columns
+    this is the minimum-norm solution in the scaled columns (so it does not depend on their units).
+    ``damping`` adds ``lambda I`` to the scaled normal equations (Levenberg-Marquardt with Marquardt's
+    diagonal scaling). a: (..., N, K), b: (..., N).
     """
     norms = torch.linalg.vector_norm(a, dim=-2)
     safe = torch.where(norms > 0, norms, torch.ones_like(norms))

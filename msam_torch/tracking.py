@@ -19,13 +19,18 @@ MEASURES = ("fitness", "sum_abs_error", "rho", "mu", "cond_scaled", "cond_unscal
 
 class TensorBoardTracker:
     def __init__(self, log_dir: str | Path, max_candidates: int = 64):
-        try:
-            from torch.utils.tensorboard import SummaryWriter
-        except ImportError as exc:  # pragma: no cover - tensorboard is a core dependency
-            raise ImportError("TensorBoard logging needs the 'tensorboard' package: pip install tensorboard") from exc
         self.log_dir = Path(log_dir)
-        self.writer = SummaryWriter(str(self.log_dir))
         self.max_candidates = max_candidates
+        self._writer = None
+
+    @property
+    def writer(self):
+        """The SummaryWriter, created on first use so a run that fails early writes nothing."""
+        if self._writer is None:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self._writer = SummaryWriter(str(self.log_dir))
+        return self._writer
 
     def save_config(self, text: str) -> None:
         """The resolved config beside the event files."""
@@ -59,6 +64,7 @@ class TensorBoardTracker:
                 self.writer.add_scalar(f"{prefix}/{stage}/gamma_{i}/{name}", g, step)
 
     def close(self) -> None:
-        self.writer.flush()
-        self.writer.close()
+        if self._writer is not None:
+            self._writer.flush()
+            self._writer.close()
 

@@ -1,0 +1,11 @@
+import pytest
+import torch
+
+
+@pytest.fixture(autouse=True)
+def _seed_and_guard_globals():
+    """Seed every test and fail any test that changes torch's global default dtype."""
+    torch.manual_seed(0)
+    dtype = torch.get_default_dtype()
+    yield
+    assert torch.get_default_dtype() == dtype, "a test changed torch's default dtype"

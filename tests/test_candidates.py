@@ -1,0 +1,35 @@
+import torch
+
+from msam_torch.candidates import Candidate, enumerate_choices, evaluate_stacked, columns, predict
+from tests.helpers import equation_data
+
+D = torch.float64
+
+
+def test_enumeration_covers_every_assignment():
+    choices = enumerate_choices(3, 3)
+    assert choices.shape == (27, 3)
+    assert len({tuple(c) for c in choices.tolist()}) == 27
+
+
+def test_batched_candidates_equal_one_by_one_modules():
+    data, theta, theta_fixed, _ = equation_data("vanderpol")
+    choices = enumerate_choices(2, 3)
+    gamma = torch.randn(1, choices.shape[0], 3, dtype=D)
+    selection = data.select(choices)
+    batched = predict(selection, columns(selection, gamma), theta.expand(1, 8, 3), theta_fixed.expand(1, 8, 0))
+    modules = [Candidate(c, theta, theta_fixed, g) for c, g in zip(choices, gamma[0])]
+    stacked = evaluate_stacked(modules, data)  # torch.func: stack_module_state + vmap + functional_call
+    for c, module in enumerate(modules):
+        one = module(data)[0]
+        assert torch.allclose(batched[0, c], one, rtol=1e-13, atol=1e-12)
+        assert torch.allclose(stacked[c, 0], one, rtol=1e-13, atol=1e-12)
+
+
+def test_signed_adjustment_keeps_the_sign_and_zero_is_guarded():
+    data, theta, theta_fixed, eq = equation_data("sode3")
+    module = Candidate(torch.tensor([2, 2, 2]), theta, theta_fixed, torch.tensor([1.0, 1.0, -3.0], dtype=D))
+    x3 = data.log_f[0, :, 2].exp() * data.sign_f[0, :, 2]
+    cols = module.columns(data)[0]
+    assert torch.allclose(cols[:, 0], data.components[0, :, 0] * x3, rtol=1e-12)
+    assert torch.isfinite(cols).all()  # negative exponent of a function that crosses zero
