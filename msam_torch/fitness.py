@@ -23,8 +23,14 @@ def sum_abs_error(y: torch.Tensor, yhat: torch.Tensor) -> torch.Tensor:
 
 def fitness(y: torch.Tensor, yhat: torch.Tensor) -> torch.Tensor:
     """Eq. 19: ``F = rho(yhat, y) / sum|eps|``; -inf where yhat is not finite."""
-    value = correlation(yhat, y) / sum_abs_error(y, yhat)
-    return torch.where(torch.isfinite(value), value, torch.full_like(value, -torch.inf))
+    return scores(y, yhat)[0]
+
+
+def scores(y: torch.Tensor, yhat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Fitness (Eq. 19), ``sum|eps|`` and rho together, each computed once."""
+    rho, error = correlation(yhat, y), sum_abs_error(y, yhat)
+    value = rho / error
+    return torch.where(torch.isfinite(value), value, torch.full_like(value, -torch.inf)), error, rho
 
 
 def nrmse(y: torch.Tensor, yhat: torch.Tensor) -> torch.Tensor:

@@ -33,7 +33,12 @@ def perturbation_magnitude(cols: torch.Tensor, cols_perturbed: torch.Tensor) -> 
     ``S`` is the sensitivity to the adjustable components' theta (design decision: the fixed
     components are left out of the denominator). Shapes (..., N, Q) -> (..., Q).
     """
-    numerator = (cols_perturbed - cols).abs().sum(-2)
+    return perturbation_magnitude_from_change(cols, cols_perturbed - cols)
+
+
+def perturbation_magnitude_from_change(cols: torch.Tensor, change: torch.Tensor) -> torch.Tensor:
+    """Eq. 15 from the columns and their change ``S(Gamma + dgamma e_i) - S`` (column i alone)."""
+    numerator = torch.linalg.vector_norm(change, ord=1, dim=-2)
     denominator = torch.linalg.vector_norm(cols, dim=-1).sum(-1, keepdim=True)
     return numerator / denominator.clamp_min(torch.finfo(cols.dtype).tiny)
 
@@ -48,7 +53,12 @@ def structural_sensitivities(delta_yhat: torch.Tensor, step: torch.Tensor) -> to
 
 def condition_number(phi: torch.Tensor) -> torch.Tensor:
     """``lambda_max / lambda_min`` of ``Phi^T Phi`` (inf where singular): (...,)."""
-    eigenvalues = torch.linalg.eigvalsh(phi.mT @ phi)
+    return gram_condition_number(phi.mT @ phi)
+
+
+def gram_condition_number(gram: torch.Tensor) -> torch.Tensor:
+    """``lambda_max / lambda_min`` of a Gram matrix ``Phi^T Phi`` (inf where singular): (...,)."""
+    eigenvalues = torch.linalg.eigvalsh(gram)
     smallest = eigenvalues[..., 0].clamp_min(0)
     ratio = eigenvalues[..., -1] / smallest
     return torch.where(smallest > 0, ratio, torch.full_like(ratio, torch.inf))

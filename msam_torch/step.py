@@ -11,8 +11,8 @@ from dataclasses import dataclass, replace
 import torch
 
 from .candidates import Selection, columns, predict
-from .fitness import correlation, fitness, sum_abs_error
-from .sensitivity import condition_number, perturbation_magnitude, structural_sensitivities
+from .fitness import correlation, scores
+from .sensitivity import gram_condition_number, perturbation_magnitude_from_change
 
 LINE_SEARCH_STEPS = (1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125)
 
@@ -61,8 +61,8 @@ class StepResult:
     mu: torch.Tensor  # (T, C)
     delta: torch.Tensor  # (T, C, Q) the least-squares solution of Eq. 17
     dm: torch.Tensor  # (T, C, Q) Eq. 15
-    cond_scaled: torch.Tensor  # (T, C) cond(Phi^T Phi) with dM scaling
-    cond_unscaled: torch.Tensor  # (T, C) without
+    cond_scaled: torch.Tensor | None  # (T, C) cond(Phi^T Phi) with dM scaling (None unless asked for)
+    cond_unscaled: torch.Tensor | None  # (T, C) without
 
 
 def lstsq(a: torch.Tensor, b: torch.Tensor, damping: float = 0.0, rcond: float = 1e-12) -> torch.Tensor:
@@ -74,24 +74,39 @@ def lstsq(a: torch.Tensor, b: torch.Tensor, damping: float = 0.0, rcond: float =
     ``damping`` adds ``lambda I`` to the scaled normal equations (Levenberg-Marquardt with Marquardt's
     diagonal scaling). a: (..., N, K), b: (..., N).
     """
-    norms = torch.linalg.vector_norm(a, dim=-2)
+    return solve_normal(a.mT @ a, (a.mT @ b.unsqueeze(-1)).squeeze(-1), damping, rcond)
+
+
+def solve_normal(gram: torch.Tensor, rhs: torch.Tensor, damping: float = 0.0, rcond: float = 1e-12) -> torch.Tensor:
+    """:func:`lstsq` from its normal equations: ``gram = a^T a`` (..., K, K), ``rhs = a^T b`` (..., K)
+    or several right-hand sides (..., K, R). The column norms are ``sqrt(diag(gram))``."""
+    many = rhs.dim() == gram.dim()
+    norms = torch.diagonal(gram, dim1=-2, dim2=-1).clamp_min(0).sqrt()
     safe = torch.where(norms > 0, norms, torch.ones_like(norms))
-    scaled = a / safe.unsqueeze(-2)
-    gram = scaled.mT @ scaled
+    scaled = gram / (safe.unsqueeze(-1) * safe.unsqueeze(-2))
     if damping:
-        gram = gram + damping * torch.eye(gram.shape[-1], dtype=gram.dtype, device=gram.device)
-    rhs = (scaled.mT @ b.unsqueeze(-1)).squeeze(-1)
-    values, vectors = torch.linalg.eigh(gram)
-    keep = values > rcond * values[..., -1:].clamp_min(torch.finfo(a.dtype).tiny)
+        scaled = scaled + damping * torch.eye(gram.shape[-1], dtype=gram.dtype, device=gram.device)
+    column = (lambda v: v.unsqueeze(-1)) if many else (lambda v: v)
+    rhs = rhs / column(safe) if many else (rhs / safe).unsqueeze(-1)
+    values, vectors = torch.linalg.eigh(scaled)
+    keep = values > rcond * values[..., -1:].clamp_min(torch.finfo(gram.dtype).tiny)
     inverse = torch.where(keep, 1.0 / torch.where(keep, values, torch.ones_like(values)), torch.zeros_like(values))
-    x = (vectors @ (inverse * (vectors.mT @ rhs.unsqueeze(-1)).squeeze(-1)).unsqueeze(-1)).squeeze(-1)
-    return torch.where(norms > 0, x / safe, torch.zeros_like(x))
+    x = vectors @ (inverse.unsqueeze(-1) * (vectors.mT @ rhs))
+    x = x if many else x.squeeze(-1)
+    return torch.where(column(norms) > 0, x / column(safe), torch.zeros_like(x))
+
+
+def design_matrix(selection: Selection, cols: torch.Tensor) -> torch.Tensor:
+    """The columns of every component, adjustable then fixed: (..., N, Q + P)."""
+    if not selection.fixed_components.shape[-1]:
+        return cols
+    return torch.cat([cols, selection.fixed_components.expand(cols.shape[:-1] + (-1,))], -1)
 
 
 def solve_theta(selection: Selection, cols: torch.Tensor, rcond: float = 1e-12):
     """Theta of every component by linear least squares for fixed exponents."""
-    design = torch.cat([cols, selection.fixed_components.expand(cols.shape[:-1] + (-1,))], -1)
-    solution = lstsq(design, selection.y.expand(cols.shape[:-1]), rcond=rcond)
+    design = design_matrix(selection, cols)
+    solution = solve_normal(design.mT @ design, (design.mT @ selection.y.unsqueeze(-1)).squeeze(-1), rcond=rcond)
     q = cols.shape[-1]
     return solution[..., :q], solution[..., q:]
 
@@ -103,42 +118,62 @@ def evaluate(selection: Selection, state: State, options: StepOptions) -> Evalua
     if options.theta == "varpro":
         theta, theta_fixed = solve_theta(selection, cols, options.rcond)
     yhat = predict(selection, cols, theta, theta_fixed)
-    score = torch.where(state.diverged, torch.full_like(state.diverged, -torch.inf, dtype=yhat.dtype), fitness(selection.y, yhat))
-    return Evaluation(cols, yhat, theta, theta_fixed, score, sum_abs_error(selection.y, yhat), correlation(yhat, selection.y))
+    score, error, rho = scores(selection.y, yhat)
+    score = torch.where(state.diverged, torch.full_like(score, -torch.inf), score)
+    return Evaluation(cols, yhat, theta, theta_fixed, score, error, rho)
 
 
-def step(selection: Selection, state: State, current: Evaluation, options: StepOptions) -> StepResult:
-    """One iteration of Eq. 15-18 (or its variable-projection form) on every candidate."""
+def step(selection: Selection, state: State, current: Evaluation, options: StepOptions,
+         conditions: bool = True) -> StepResult:
+    """One iteration of Eq. 15-18 (or its variable-projection form) on every candidate.
+
+    With ``Y = theta * [S(Gamma + dgamma e_i) - S(Gamma)]`` the structural sensitivities are
+    ``Phi = Y / dM`` (Eq. 16) or ``Y / dgamma``; the least-squares problem of Eq. 17 is solved on
+    ``Y`` (the same equilibrated problem) and mapped back, ``Phi dGamma = Y x``. With theta fixed
+    only the small Gram matrices ``Y^T Y`` and ``Y^T eps`` are formed; ``conditions`` also returns
+    ``cond(Phi^T Phi)`` with and without dM scaling (Figure 5).
+    """
     eps = selection.y - current.yhat
-    perturbed = columns(selection, state.gamma + options.dgamma)
-    delta_cols = perturbed - current.cols
-    dm = perturbation_magnitude(current.cols, perturbed)
-    delta_yhat = current.theta.unsqueeze(-2) * delta_cols
+    change = current.cols * selection.perturbation_factor(options.dgamma)  # S(Gamma + dgamma e_i) - S
+    dm = perturbation_magnitude_from_change(current.cols, change)
+    theta = current.theta
     if options.theta == "varpro":  # Kaufman: project the sensitivities off the span of the columns
-        design = torch.cat([current.cols, selection.fixed_components.expand(current.cols.shape[:-1] + (-1,))], -1)
-        delta_yhat = delta_yhat - design @ _lstsq_many(design, delta_yhat, options.rcond)
+        design = design_matrix(selection, current.cols)
+        sens = change * theta.unsqueeze(-2)
+        sens = sens - design @ solve_normal(design.mT @ design, design.mT @ sens, rcond=options.rcond)
+        gram = sens.mT @ sens
+        rhs = (sens.mT @ eps.unsqueeze(-1)).squeeze(-1)
+        fitted = lambda x: (sens @ x.unsqueeze(-1)).squeeze(-1)
+    else:  # Y = change * theta: scale the Gram matrix of ``change`` instead of forming Y
+        gram = (change.mT @ change) * (theta.unsqueeze(-1) * theta.unsqueeze(-2))
+        rhs = (change.mT @ eps.unsqueeze(-1)).squeeze(-1) * theta
+        fitted = lambda x: (change @ (theta * x).unsqueeze(-1)).squeeze(-1)
     unit = torch.full_like(dm, options.dgamma)
-    phi_scaled = structural_sensitivities(delta_yhat, dm)
-    phi_unscaled = structural_sensitivities(delta_yhat, unit)
-    phi = phi_scaled if options.scaling == "dm" else phi_unscaled
-    delta = lstsq(phi, eps, options.damping, options.rcond)
-    mu = _step_size(selection, state, current, phi, delta, eps, options)
+    steps = dm if options.scaling == "dm" else unit  # Phi's column i is Y_i / steps_i
+    x = solve_normal(gram, rhs, options.damping, options.rcond)
+    delta = x * steps.clamp_min(torch.finfo(dm.dtype).tiny)
+    mu = _step_size(selection, state, current, fitted, x, delta, eps, options)
     gamma = state.gamma + mu.unsqueeze(-1) * delta
     bad = ~torch.isfinite(gamma).all(-1) | (gamma.abs() > options.gamma_limit).any(-1) | ~torch.isfinite(current.fitness)
     diverged = state.diverged | bad
     gamma = torch.where(diverged.unsqueeze(-1), state.gamma, gamma)
     new_state = State(gamma, current.theta, current.theta_fixed, diverged)
-    return StepResult(new_state, mu, delta, dm, condition_number(phi_scaled), condition_number(phi_unscaled))
+    cond_scaled = cond_unscaled = None
+    if conditions:
+        cond_scaled = gram_condition_number(_rescale(gram, dm))
+        cond_unscaled = gram_condition_number(_rescale(gram, unit))
+    return StepResult(new_state, mu, delta, dm, cond_scaled, cond_unscaled)
 
 
-def _lstsq_many(a: torch.Tensor, b: torch.Tensor, rcond: float) -> torch.Tensor:
-    """Least squares with several right-hand sides ``b`` (..., N, K) -> (..., K_a, K)."""
-    return lstsq(a.unsqueeze(-3), b.mT, rcond=rcond).mT
+def _rescale(gram: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
+    """``Phi^T Phi`` for ``Phi = Y / steps`` from ``Y^T Y``."""
+    steps = steps.clamp_min(torch.finfo(steps.dtype).tiny)
+    return gram / (steps.unsqueeze(-1) * steps.unsqueeze(-2))
 
 
-def _step_size(selection, state, current, phi, delta, eps, options) -> torch.Tensor:
-    if options.step_size == "eq20":  # Eq. 20
-        return correlation(eps, (phi @ delta.unsqueeze(-1)).squeeze(-1))
+def _step_size(selection, state, current, fitted, x, delta, eps, options) -> torch.Tensor:
+    if options.step_size == "eq20":  # Eq. 20: mu = corr(eps, Phi dGamma) with Phi dGamma = Y x
+        return correlation(eps, fitted(x))
     if options.step_size == "one":
         return torch.ones_like(current.fitness)
     return _line_search(selection, state, current, delta, options)
@@ -148,7 +183,7 @@ def _line_search(selection, state, current, delta, options) -> torch.Tensor:
     """Largest mu in LINE_SEARCH_STEPS that raises the fitness (0 if none), all at once."""
     mus = torch.tensor(LINE_SEARCH_STEPS, dtype=delta.dtype, device=delta.device)
     gamma = state.gamma + mus.view((-1,) + (1,) * state.gamma.dim()) * delta  # (L, T, C, Q)
-    scores = evaluate(selection, replace(state, gamma=gamma), options).fitness  # (L, T, C)
-    better = scores > current.fitness
+    trial = evaluate(selection, replace(state, gamma=gamma), options).fitness  # (L, T, C)
+    better = trial > current.fitness
     first = torch.where(better.any(0), better.long().argmax(0), torch.full_like(better[0], len(mus), dtype=torch.long))
     return torch.cat([mus, mus.new_zeros(1)])[first]

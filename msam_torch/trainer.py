@@ -113,7 +113,7 @@ class Trainer:
         else:
             best_fitness, best_gamma = initial_best, gamma
         for iteration in range(steps):
-            result = step(selection, state, current, self.options)
+            result = step(selection, state, current, self.options, conditions=bool(self.callbacks[event]))
             state = result.state
             current = evaluate(selection, state, self.options)
             improved = current.fitness > best_fitness
