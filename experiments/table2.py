@@ -1,0 +1,24 @@
+"""Table 2: the harmonic and van der Pol oscillators, 10 trials at 0, 25 and 50 % parametric error.
+
+    PYTHONPATH=. python experiments/table2.py [configs/table2_harmonic.yaml configs/table2_vanderpol.yaml]
+        [--out DIR] [--max-trials K]
+"""
+import argparse
+from pathlib import Path
+
+from experiments.common import ROOT, main_guard
+from experiments.controlled import run_tables
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("configs", nargs="*", default=[str(ROOT / "configs/table2_harmonic.yaml"),
+                                                       str(ROOT / "configs/table2_vanderpol.yaml")])
+    parser.add_argument("--out", default=str(ROOT / "experiments/results/table2"))
+    parser.add_argument("--max-trials", type=int, default=None)
+    args = parser.parse_args()
+    return run_tables([Path(c) for c in args.configs], Path(args.out), "table2", args.max_trials)
+
+
+if __name__ == "__main__":
+    main_guard(main)
