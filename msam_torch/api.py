@@ -34,10 +34,13 @@ def nominal_parameters(config: Config, spec: ModelSpec) -> dict:
 
 
 def adapt(config: Config | dict | str, overrides: list[str] = (),
-          on_trainer: Callable[[Trainer, Equation], None] | None = None, base_dir: str | Path | None = None) -> RunResult:
+          on_trainer: Callable[[Trainer, Equation], None] | None = None, base_dir: str | Path | None = None,
+          trainer_factory: Callable[[Config], Trainer] | None = None) -> RunResult:
     """Run Algorithm 1 on each state equation; ``on_trainer`` may attach callbacks.
 
-    Data file paths are relative to ``base_dir`` (default: the config file's folder)."""
+    Data file paths are relative to ``base_dir`` (default: the config file's folder);
+    ``trainer_factory`` builds the trainer (default :func:`make_trainer`; see
+    :mod:`msam_torch.distributed` for the round robin sharded over processes)."""
     if base_dir is None:
         base_dir = Path(config).parent if isinstance(config, (str, Path)) else Path(".")
     if not isinstance(config, Config):
@@ -53,7 +56,7 @@ def adapt(config: Config | dict | str, overrides: list[str] = (),
     for equation in spec.equations:
         data = EquationData.build(equation, signals, config.adaptation.normalize)
         theta = spec.theta(equation, parameters).to(device=device, dtype=dtype)
-        trainer = make_trainer(config)
+        trainer = (trainer_factory or make_trainer)(config)
         if on_trainer is not None:
             on_trainer(trainer, equation)
         start = torch.tensor([equation.components[i].start for i in equation.adjustable], dtype=dtype, device=device)

@@ -71,13 +71,7 @@ class Trainer:
         if choices is None:
             choices = enumerate_choices(data.log_f.shape[-1], q, device=data.y.device)
         start = torch.zeros(q, dtype=data.y.dtype, device=data.y.device) if start is None else start
-        best_fitness, best_gamma, diverged = [], [], []
-        for offset in range(0, choices.shape[0], self.chunk_size):
-            chunk = choices[offset: offset + self.chunk_size]
-            result = self._adapt(data, chunk, theta.unsqueeze(1), theta_fixed.unsqueeze(1), start,
-                                 self.round_robin_steps, "round_robin_step", offset)
-            best_fitness.append(result[0]), best_gamma.append(result[1]), diverged.append(result[2])
-        ranking_fitness, ranking_gamma = torch.cat(best_fitness, 1), torch.cat(best_gamma, 1)
+        ranking_fitness, ranking_gamma, diverged = self.round_robin(data, theta, theta_fixed, start, choices)
         winner = ranking_fitness.argmax(1)
         self.trigger("round_robin_end", choices=choices, ranking_fitness=ranking_fitness, winner=winner)
 
@@ -95,10 +89,21 @@ class Trainer:
             choices=choices, ranking_fitness=ranking_fitness, ranking_gamma=ranking_gamma, winner=winner, gamma=gamma,
             theta=final.theta[:, 0], theta_fixed=final.theta_fixed[:, 0],
             start=starting_measures(data, theta, theta_fixed),
-            final=measures(data.y, final.yhat[:, 0]), diverged=torch.cat(diverged, 1),
+            final=measures(data.y, final.yhat[:, 0]), diverged=diverged,
         )
         self.trigger("refinement_end", fit=fit)
         return fit
+
+    def round_robin(self, data, theta, theta_fixed, start, choices, offset: int = 0):
+        """Stage 1 over ``choices`` in chunks: each candidate's best fitness (T, C), its gamma
+        (T, C, Q) and whether it diverged (T, C). ``offset`` numbers the candidates in events."""
+        best_fitness, best_gamma, diverged = [], [], []
+        for first in range(0, choices.shape[0], self.chunk_size):
+            chunk = choices[first: first + self.chunk_size]
+            result = self._adapt(data, chunk, theta.unsqueeze(1), theta_fixed.unsqueeze(1), start,
+                                 self.round_robin_steps, "round_robin_step", offset + first)
+            best_fitness.append(result[0]), best_gamma.append(result[1]), diverged.append(result[2])
+        return torch.cat(best_fitness, 1), torch.cat(best_gamma, 1), torch.cat(diverged, 1)
 
     def _adapt(self, data, choices, theta, theta_fixed, start, steps, event, offset, initial_best=None):
         """Iterate a batch of candidates; return each one's best fitness, its gamma, diverged."""
