@@ -248,7 +248,18 @@ def arguments(default_config: str, default_out: str, description: str) -> argpar
     parser.add_argument("--out", default=str(ROOT / default_out), help="output folder")
     parser.add_argument("--max-trials", type=int, default=None,
                         help="compute at most this many new trials, then stop (the next run resumes)")
-    return parser.parse_args()
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (see README, Performance)")
+    args = parser.parse_args()
+    set_threads(args.threads)
+    return args
+
+
+def set_threads(threads: int) -> None:
+    """Intra-op threads: the chunks are cache-sized, so one thread per process is fastest on a
+    shared machine (OpenMP threads spin-wait when the cores are oversubscribed)."""
+    import torch
+
+    torch.set_num_threads(threads)
 
 
 def main_guard(fn) -> None:

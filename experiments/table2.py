@@ -6,7 +6,7 @@
 import argparse
 from pathlib import Path
 
-from experiments.common import ROOT, main_guard
+from experiments.common import ROOT, main_guard, set_threads
 from experiments.controlled import run_tables
 
 
@@ -16,7 +16,9 @@ def main() -> int:
                                                        str(ROOT / "configs/table2_vanderpol.yaml")])
     parser.add_argument("--out", default=str(ROOT / "experiments/results/table2"))
     parser.add_argument("--max-trials", type=int, default=None)
+    parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()
+    set_threads(args.threads)
     return run_tables([Path(c) for c in args.configs], Path(args.out), "table2", args.max_trials)
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import pandas as pd
 import torch
 
-from experiments.common import (ROOT, dump_config, main_guard, markdown_table, protocol_notes, save_figure,
+from experiments.common import (ROOT, dump_config, set_threads, main_guard, markdown_table, protocol_notes, save_figure,
                                 tensorboard_scalars, write_csv, write_text)
 from msam_torch.api import adapt
 from msam_torch.candidates import Candidate, EquationData
@@ -64,7 +64,9 @@ def main() -> int:
     parser.add_argument("config", nargs="?", default=str(ROOT / "configs/is_model.yaml"))
     parser.add_argument("--out", default=str(ROOT / "experiments/results/table6"))
     parser.add_argument("--prepare", action="store_true", help="derive the income/expenditure CSV and stop")
+    parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()
+    set_threads(args.threads)
     config_path, out = Path(args.config), Path(args.out)
     if args.prepare:
         print(f"wrote {prepare(ROOT / 'data/us_macro/macrodata.csv', ROOT / 'data/us_macro/is_income_expenditure.csv')}")
