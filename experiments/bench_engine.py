@@ -1,8 +1,8 @@
 """Engine benchmark, printed in one run:
 
 1. round-robin step time (one Eq. 15-20 step + evaluation of every candidate) for 4, 27, 729 and
-   4096 candidates at N = 1e3, 1e4, 1e5 samples, batched (chunked to the protocol's cache-sized
-   chunks) vs the sequential reference path (one Candidate module at a time, torch.func
+   4096 candidates at N = 1e3, 1e4, 1e5 samples, batched (cache-sized chunks of candidates, run one
+   after another as the Trainer does; the step time is the sum over chunks of the r-th repeat) vs the sequential reference path (one Candidate module at a time, torch.func
    sensitivities; measured on a few candidates and scaled to all), their ratio, and peak memory;
 2. 4096 candidates at N = 1e4 for 15 round-robin steps (wall time, peak memory);
 3. wall time of each table protocol (Tables 2-4, Figure 5; the batched tensor programs).
@@ -29,7 +29,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 CANDIDATES = {4: ("harmonic", None), 27: ("sode3", None), 729: ("wide", 3), 4096: ("wide", 4)}
 SAMPLES = (1_000, 10_000, 100_000)
-MEMORY_LIMIT = 6 * 2**30  # skip a cell whose batched (C, N, Q) data alone would pass this
+MAX_VALUES = 10**9  # cells with more (C x N x Q) values per step are skipped unless --all
+FEW_REPEATS_ABOVE = 10**7  # larger cells: 3 repeats
 
 
 def problem(candidates: int, samples: int):
@@ -73,27 +74,20 @@ def cell(candidates: int, samples: int, repeats: int, sequential: int) -> dict:
     q = theta.shape[0]
     choices = enumerate_choices(data.log_f.shape[-1], q)
     size = chunk_size(1, samples, q, MAX_ELEMENTS)
-    chunks = []
-    for first in range(0, len(choices), size):
+    wall, cpu = [0.0] * repeats, [0.0] * repeats
+    for first in range(0, len(choices), size):  # one chunk at a time, as the Trainer runs them
         selection = data.select(choices[first: first + size])
         c = selection.log_f.shape[1]
         state = State(torch.zeros(1, c, q, dtype=torch.float64), theta.expand(1, c, q),
                       theta_fixed.expand(1, c, theta_fixed.shape[0]), torch.zeros(1, c, dtype=torch.bool))
-        chunks.append([selection, state, evaluate(selection, state, options)])
-
-    def one_step():  # one round-robin iteration of every candidate
-        for entry in chunks:
-            selection, state, current = entry
+        current = evaluate(selection, state, options)
+        for r in range(repeats + 1):  # the first step warms up (allocations, perturbation factors)
+            t0, c0 = time.perf_counter(), time.process_time()
             state = step(selection, state, current, options, conditions=False).state
-            entry[1], entry[2] = state, evaluate(selection, state, options)
-
-    one_step()  # warm-up (allocations, perturbation factors)
-    wall, cpu = [], []
-    for _ in range(repeats):
-        t0, c0 = time.perf_counter(), time.process_time()
-        one_step()
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
+            current = evaluate(selection, state, options)
+            if r:
+                wall[r - 1] += time.perf_counter() - t0
+                cpu[r - 1] += time.process_time() - c0
     measured = min(sequential, len(choices))
     seq = []
     for _ in range(max(1, min(3, repeats))):
@@ -183,6 +177,7 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--sequential", type=int, default=4, help="candidates timed on the sequential path")
     parser.add_argument("--skip-tables", action="store_true")
+    parser.add_argument("--all", action="store_true", help="also the cells above 1e9 values per step")
     parser.add_argument("--cell", type=int, nargs=2, help=argparse.SUPPRESS)
     parser.add_argument("--long", type=int, nargs=3, help=argparse.SUPPRESS)
     parser.add_argument("--tables-only", action="store_true", help=argparse.SUPPRESS)
@@ -197,10 +192,11 @@ def main() -> int:
     for candidates in CANDIDATES:
         for samples in SAMPLES:
             q = 6 if candidates > 27 else (3 if candidates == 27 else 2)
-            if candidates * samples * q * 8 * 4 > MEMORY_LIMIT * 8:
-                print(f"{candidates:>5} {samples:>7}  skipped (memory)")
+            if candidates * samples * q > MAX_VALUES and not args.all:
+                print(f"{candidates:>5} {samples:>7}  skipped: {candidates * samples * q:.1e} values per step (--all runs it)")
                 continue
-            r = spawn(args, "--cell", str(candidates), str(samples))
+            repeats = args.repeats if candidates * samples * q <= FEW_REPEATS_ABOVE else 3
+            r = spawn(args, "--cell", str(candidates), str(samples), "--repeats", str(repeats))
             if r:
                 print(f"{candidates:>5} {samples:>7} {r['batched_ms']:>11.3f} {r['batched_min_ms']:>8.3f} "
                       f"{r['batched_cpu_ms']:>8.3f} {r['sequential_ms']:>14.1f} {r['ratio']:>7.1f} {r['peak_rss_gb']:>8.2f}"
