@@ -69,9 +69,12 @@ class DataConfig(_Section):
     parametric_error: float = Field(0.0, ge=0, description="total relative error of the nominal parameters")
     noise: float = Field(0.0, ge=0, description="simulated measurement noise, as a fraction of each signal's std")
     seed: int = 0
-    derivatives: Literal["exact", "savgol", "spline", "loess", "finite_difference"] = Field(
-        "exact", description="how unmeasured derivatives are estimated ('exact': simulated systems only)")
-    window: Optional[int] = Field(None, ge=3, description="derivative estimator window, in samples")
+    derivatives: Literal["auto", "exact", "savgol", "spline", "loess", "finite_difference"] = Field(
+        "auto", description="how unmeasured derivatives are estimated; 'auto': exact for a noise-free simulated "
+                            "system, else savgol; 'exact': every signal the model reads is given")
+    window: Optional[int] = Field(None, ge=3, description="derivative estimator window in samples "
+                                                          "(default: chosen from the noise floor)")
+    resample: bool = Field(False, description="interpolate irregularly sampled data onto a uniform grid")
 
 
 class AdaptationConfig(_Section):
@@ -84,6 +87,8 @@ class AdaptationConfig(_Section):
     step_size: Literal["eq20", "one", "line_search"] = Field("eq20", description="mu by Eq. 20, mu = 1, or backtracking")
     theta: Literal["fixed", "varpro"] = Field("fixed", description="nominal theta, or re-solved each step (variable projection)")
     normalize: Literal["none", "rms"] = Field("none", description="divide each adjustment function by its RMS")
+    tune_theta: bool = Field(False, description="start from theta re-estimated by least squares on the starting model")
+    hold_fixed: bool = Field(False, description="theta re-estimation keeps the fixed components' theta at nominal")
     damping: float = Field(0.0, ge=0, description="Levenberg-Marquardt damping of the step")
     gamma_limit: float = Field(20.0, gt=0, description="|gamma| beyond which a candidate is marked diverged")
     chunk_size: int = Field(4096, ge=1, description="candidates per batched chunk (bounds memory)")
