@@ -80,7 +80,8 @@ def adapt_equation(config: Config, equation: Equation, signals: dict, theta: tor
     signals = {k: v.expand(trials, v.shape[-1]) for k, v in signals.items()}
     theta = theta.expand(trials, -1)
     data = EquationData.build(equation, signals, a.normalize)
-    theta_adjustable, theta_fixed = theta[:, list(equation.adjustable)], theta[:, list(equation.fixed)]
+    theta_adjustable = theta[:, list(equation.adjustable)] * data.theta_scale
+    theta_fixed = theta[:, list(equation.fixed)]
     tuned_start = tune_start(data, theta_fixed, a.hold_fixed)
     if a.tune_theta:
         theta_adjustable, theta_fixed = tuned_start.theta, tuned_start.theta_fixed
@@ -91,7 +92,8 @@ def adapt_equation(config: Config, equation: Equation, signals: dict, theta: tor
     tuned_final = tune_adapted(data, fit.choices[fit.winner], fit.gamma, fit.theta_fixed, a.hold_fixed)
     held = None if held_out is None else EquationData.build(equation, held_out)
     tuning = Tuning(tuned_start, tuned_final, a.tune_theta, a.hold_fixed, held)
-    return [equation_result(equation, fit, theta[i], data.scale[i], i, tuning) for i in range(trials)]
+    return [equation_result(equation, fit, theta[i], data.scale[i], i, tuning, data.theta_scale[i])
+            for i in range(trials)]
 
 
 @dataclass(frozen=True)
@@ -118,17 +120,19 @@ def in_order(equation: Equation, adjustable, fixed) -> list[float]:
 
 
 def equation_result(equation: Equation, fit: Fit, theta: torch.Tensor, scale: torch.Tensor, trial: int = 0,
-                    tuning: Tuning | None = None) -> EquationResult:
+                    tuning: Tuning | None = None, component_scale: torch.Tensor | None = None) -> EquationResult:
     """One trial of a :class:`Fit` as an :class:`EquationResult`; ``theta`` is the trial's nominal
     theta of every component (the starting equation shows the tuned one if it was the start).
 
-    With normalised adjustment functions (``f / s``) the printed theta absorbs ``s^-gamma`` so
-    the equation reads in the data's own units.
+    With normalised adjustment functions (``f / s``) and components (``M / c``) the printed theta
+    absorbs ``s^-gamma / c`` so the equation reads in the data's own units.
     """
     winner = int(fit.winner[trial])
     choice = fit.choices[winner].tolist()
     gamma = fit.gamma[trial].tolist()
     to_data_units = scale[fit.choices[winner]] ** (-fit.gamma[trial])
+    if component_scale is not None:
+        to_data_units = to_data_units / component_scale
     thetas = in_order(equation, fit.theta[trial] * to_data_units, fit.theta_fixed[trial])
     slot = {i: k for k, i in enumerate(equation.adjustable)}
     terms = [format_component(equation, i, choice[slot[i]], gamma[slot[i]]) if i in slot
@@ -147,7 +151,8 @@ def equation_result(equation: Equation, fit: Fit, theta: torch.Tensor, scale: to
     extra = {}
     if tuning is not None:
         nominal = theta.to(fit.gamma.dtype)
-        tuned_theta = in_order(equation, tuning.start.theta[trial], tuning.start.theta_fixed[trial])
+        start_units = 1.0 if component_scale is None else 1.0 / component_scale
+        tuned_theta = in_order(equation, tuning.start.theta[trial] * start_units, tuning.start.theta_fixed[trial])
         if tuning.used_for_start:
             start_theta = tuned_theta
         final_theta = in_order(equation, tuning.final.theta[trial] * to_data_units, tuning.final.theta_fixed[trial])
@@ -160,7 +165,7 @@ def equation_result(equation: Equation, fit: Fit, theta: torch.Tensor, scale: to
                       **pick(tuning.final.measures), "nominal_error": error(final_theta)},
         }
         if tuning.validation is not None:
-            extra["validation"] = validation_measures(equation, fit, tuning, nominal, to_data_units, trial)
+            extra["validation"] = validation_measures(equation, fit, tuning, nominal, to_data_units, start_units, trial)
     return EquationResult(
         target=equation.target,
         equation=format_equation(equation.target, thetas, terms),
@@ -172,7 +177,7 @@ def equation_result(equation: Equation, fit: Fit, theta: torch.Tensor, scale: to
 
 
 def validation_measures(equation: Equation, fit: Fit, tuning: Tuning, nominal: torch.Tensor,
-                        to_data_units: torch.Tensor, trial: int) -> dict:
+                        to_data_units: torch.Tensor, start_units, trial: int) -> dict:
     """Measures on the held-out data of the starting, tuned starting, adapted and tuned adapted
     models (one-step, algebraic; the held-out data are not normalised: theta is in data units)."""
     held = tuning.validation
@@ -181,7 +186,7 @@ def validation_measures(equation: Equation, fit: Fit, tuning: Tuning, nominal: t
     adjustable, fixed = list(equation.adjustable), list(equation.fixed)
     models = {
         "start": (None, nominal[adjustable], nominal[fixed]),
-        "start_tuned": (None, tuning.start.theta[trial], tuning.start.theta_fixed[trial]),
+        "start_tuned": (None, tuning.start.theta[trial] * start_units, tuning.start.theta_fixed[trial]),
         "final": (choice, fit.theta[trial] * to_data_units, fit.theta_fixed[trial]),
         "final_tuned": (choice, tuning.final.theta[trial] * to_data_units, tuning.final.theta_fixed[trial]),
     }

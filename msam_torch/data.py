@@ -253,7 +253,7 @@ def build_dataset(t: np.ndarray, measured: dict[str, np.ndarray], config: DataCo
     info = {**info, "samples": int(t.size), "measured": sorted(measured),
             "derivatives": {k: e.info for k, e in estimates.items()} or config.derivatives,
             "noise_level": {k: noise_level(v) for k, v in measured.items()}}
-    tensors = {k: torch.as_tensor(np.asarray(v), dtype=dtype) for k, v in signals.items()}
+    tensors = {k: torch.tensor(np.asarray(v, dtype=float), dtype=dtype) for k, v in signals.items()}
     check_variation(spec, tensors, source)
     return Dataset(tensors, info)
 
