@@ -114,7 +114,9 @@ def load_config(source: Union[str, Path, dict], overrides: list[str] = ()) -> Co
         except FileNotFoundError:
             raise ConfigError("", f"{path}: no such config file") from None
         except yaml.YAMLError as exc:
-            raise ConfigError("", f"{path}: malformed YAML: {exc}") from None
+            raise ConfigError("", f"{path}: malformed YAML{_yaml_place(exc)}") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError("", f"{path}: cannot read the config: {exc}") from None
         if not isinstance(raw, dict):
             raise ConfigError("", f"{path}: the top level must be a mapping")
     raw = _apply_overrides(raw, overrides)
@@ -124,6 +126,14 @@ def load_config(source: Union[str, Path, dict], overrides: list[str] = ()) -> Co
         error = exc.errors()[0]
         key = ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in error["loc"]).replace(".[", "[")
         raise ConfigError(key, f"{error['msg']} (in {origin})") from None
+
+
+def _yaml_place(exc: yaml.YAMLError) -> str:
+    """`` at line L, column C: problem`` from a YAML error, on one line."""
+    mark = getattr(exc, "problem_mark", None)
+    place = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    return f"{place}: {problem}"
 
 
 def _apply_overrides(raw: dict, overrides) -> dict:
@@ -143,7 +153,7 @@ def _apply_overrides(raw: dict, overrides) -> dict:
         try:
             node[parts[-1]] = yaml.safe_load(value)
         except yaml.YAMLError as exc:
-            raise ConfigError(key, f"malformed value {value!r}: {exc}") from None
+            raise ConfigError(key, f"malformed value {value!r}{_yaml_place(exc)}") from None
     return raw
 
 

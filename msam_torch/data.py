@@ -138,8 +138,9 @@ def column(frame: pd.DataFrame, name: str, source: str, key: str) -> np.ndarray:
     """A numeric column without NaN or inf; errors name the file, column, rows and config key."""
     if name not in frame.columns:
         names = [str(c) for c in frame.columns]
-        close = difflib.get_close_matches(str(name), names, n=1)
-        hint = f"; did you mean {close[0]!r}?" if close else ""
+        lower = {n.lower(): n for n in names}
+        close = difflib.get_close_matches(str(name).lower(), list(lower), n=1)
+        hint = f"; did you mean {lower[close[0]]!r}?" if close else ""
         raise DataError(f"{source}: no column {name!r} (asked for by {key}); columns are {names}{hint}")
     raw = frame[name]
     values = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=float)
