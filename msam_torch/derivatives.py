@@ -10,8 +10,8 @@ Estimators (all return the smoothed signal and its first ``order`` derivatives):
 
 Window rule (``savgol`` and ``loess`` when no window is given): the smoother should pass what
 the record holds above its noise and stop where the noise takes over, the cut-off of a Wiener
-filter. :func:`choose_window` finds the lowest frequency at which the signal's (tapered, band
-averaged) periodogram falls to the white-noise floor set by :func:`noise_level`, and picks the
+filter. :func:`choose_window` finds the lowest frequency at which the signal's power (tapered,
+band-averaged periodogram) falls to the white-noise power set by :func:`noise_level`, and picks the
 window whose cut-off frequency is there (Schafer 2011: ``f_c ~ (p + 1) / (3.2 w - 4.6)`` cycles per
 sample for a local polynomial of degree ``p``). Differentiation multiplies signal and noise alike
 by ``omega^k``, so the same cut-off serves every derivative order. Noise-free records get the
@@ -55,7 +55,8 @@ def noise_level(y: np.ndarray) -> float:
 
 def cutoff_frequency(y: np.ndarray, sigma: float) -> float:
     """Lowest frequency (cycles per sample) where the band-averaged periodogram of the linearly
-    detrended, Hann-tapered signal falls to the floor of white noise of std ``sigma``."""
+    detrended, Hann-tapered signal falls to twice the floor of white noise of std ``sigma``: there
+    the signal's power no longer exceeds the noise's (the Wiener gain falls to 1/2)."""
     n = y.size
     index = np.arange(n)
     detrended = y - np.polyval(np.polyfit(index, y, 1), index)
@@ -64,7 +65,7 @@ def cutoff_frequency(y: np.ndarray, sigma: float) -> float:
     from scipy.ndimage import uniform_filter1d
 
     band = uniform_filter1d(power, size=min(BAND, power.size), mode="nearest")
-    below = np.flatnonzero(band <= sigma**2 * np.sum(taper**2))
+    below = np.flatnonzero(band <= 2.0 * sigma**2 * np.sum(taper**2))  # signal power <= noise power
     freq = np.fft.rfftfreq(n)
     return float(freq[below[0]] if below.size else freq[-1])
 
