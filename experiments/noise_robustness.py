@@ -11,7 +11,7 @@ form. All trials of a row run as one batch on the trials axis T.
 
     PYTHONPATH=. python experiments/noise_robustness.py                 # both tables, harmonic
     PYTHONPATH=. python experiments/noise_robustness.py --config configs/vanderpol.yaml \\
-        --expect "abs(x),*,*" --noise 0 0.001 0.01 --errors none
+        --expect "abs(x),*,*" --noise 0 0.001 0.01 --errors none --set data.derivatives=loess
 """
 from __future__ import annotations
 
@@ -115,7 +115,8 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=50, help="parametric-error trials per level")
     parser.add_argument("--modes", nargs="*", default=list(THETA_MODES), choices=list(THETA_MODES))
     parser.add_argument("--json", help="also write the rows to this JSON file")
-    parser.add_argument("overrides", nargs="*", help="config overrides such as data.derivatives=loess")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="config override such as data.derivatives=loess (repeatable)")
     args = parser.parse_args()
     expect = args.expect.split(",")
     out = {}

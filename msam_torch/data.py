@@ -107,8 +107,10 @@ def read_frame(path: Path) -> tuple[pd.DataFrame, str]:
             frame.index.name = "row"
         else:
             frame = pd.read_csv(path, comment="#", skipinitialspace=True)
-            frame.index = _data_lines(path)[: len(frame)] if len(frame) else frame.index
-            frame.index.name = "line"
+            lines = _data_lines(path)
+            if len(lines) == len(frame):  # else (quoted line breaks) fall back to 0-based rows
+                frame.index = lines
+            frame.index.name = "line" if len(lines) == len(frame) else "row"
     except (DataError, MemoryError):
         raise
     except Exception as exc:  # pandas and pyarrow raise many types for unreadable files

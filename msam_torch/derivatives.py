@@ -87,6 +87,17 @@ def estimate(t: np.ndarray, y: np.ndarray, order: int, method: str = "savgol", w
 
     ``info`` records the method, the window (samples, ``None`` where not windowed), how it was
     chosen, the local degree and the noise estimate, for the result's provenance."""
+    try:
+        with np.errstate(all="ignore"):
+            result = _estimate(t, y, order, method, window, name)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # the libraries' numeric failures
+        raise DataError(f"{name}: the {method} estimator failed: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+    if not all(np.isfinite(v).all() for v in result.values):
+        raise DataError(f"{name}: the {method} estimates are not finite (values too large or too close in time?)")
+    return result
+
+
+def _estimate(t, y, order, method, window, name) -> Estimate:
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
     n = y.size

@@ -6,7 +6,6 @@ import torch
 from msam_torch.api import adapt
 from msam_torch.candidates import EquationData
 from msam_torch.config import load_config
-from msam_torch.data import load_datasets
 from msam_torch.derivatives import METHODS, choose_window, estimate, noise_level
 from msam_torch.spec import ModelSpec
 from msam_torch.systems import SYSTEMS, simulate

@@ -4,8 +4,6 @@ import string
 
 import numpy as np
 import pandas as pd
-import pytest
-import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
