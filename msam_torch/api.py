@@ -1,6 +1,7 @@
 """The Python entry point: ``adapt(config)`` runs MSAM on every state equation of a config."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -8,12 +9,13 @@ import torch
 
 from .candidates import EquationData
 from .config import Config, load_config
-from .data import load_datasets
+from .data import Table, load_datasets
 from .result import EquationResult, RunResult, format_component, format_equation
 from .spec import Equation, ModelSpec
 from .step import StepOptions
 from .systems import perturb_parameters
 from .trainer import Fit, Trainer
+from .tuning import Tuned, measure_model, relative_error, tune_adapted, tune_start
 
 
 def step_options(config: Config) -> StepOptions:
@@ -35,10 +37,13 @@ def nominal_parameters(config: Config, spec: ModelSpec) -> dict:
 
 def adapt(config: Config | dict | str, overrides: list[str] = (),
           on_trainer: Callable[[Trainer, Equation], None] | None = None, base_dir: str | Path | None = None,
+          data: Table | None = None, validation: Table | None = None,
           trainer_factory: Callable[[Config], Trainer] | None = None) -> RunResult:
     """Run Algorithm 1 on each state equation; ``on_trainer`` may attach callbacks.
 
-    Data file paths are relative to ``base_dir`` (default: the config file's folder);
+    Data file paths are relative to ``base_dir`` (default: the config file's folder). ``data``
+    (and ``validation``) give the measurements in memory instead of ``data.file``: a pandas
+    DataFrame or a mapping of column name to 1-D array or tensor, read through ``data.columns``.
     ``trainer_factory`` builds the trainer (default :func:`make_trainer`; see
     :mod:`msam_torch.distributed` for the round robin sharded over processes)."""
     if base_dir is None:
@@ -48,53 +53,96 @@ def adapt(config: Config | dict | str, overrides: list[str] = (),
     spec = ModelSpec.from_config(config.model)
     dtype = getattr(torch, config.adaptation.dtype)
     device = torch.device(config.adaptation.device)
-    train, validation = load_datasets(config.data, spec, base_dir, dtype=dtype)
+    train, held_out = load_datasets(config.data, spec, base_dir, dtype=dtype, frame=data, validation_frame=validation)
     signals = {k: v.to(device) for k, v in train.signals.items()}
-    provenance = train.info
+    provenance = train.info if held_out is None else {**train.info, "validation": held_out.info}
     parameters = nominal_parameters(config, spec)
     results = []
+    held_signals = None if held_out is None else {k: v.to(device) for k, v in held_out.signals.items()}
     for equation in spec.equations:
-        data = EquationData.build(equation, signals, config.adaptation.normalize)
         theta = spec.theta(equation, parameters).to(device=device, dtype=dtype)
         trainer = (trainer_factory or make_trainer)(config)
         if on_trainer is not None:
             on_trainer(trainer, equation)
-        start = torch.tensor([equation.components[i].start for i in equation.adjustable], dtype=dtype, device=device)
-        fit = trainer.fit(data, theta[list(equation.adjustable)].unsqueeze(0), theta[list(equation.fixed)].unsqueeze(0), start)
-        results.append(equation_result(equation, fit, theta, data.scale[0]))
+        results += adapt_equation(config, equation, signals, theta, trainer, held_signals)
     provenance = {**provenance, "nominal_parameters": parameters}
     return RunResult(results, config.model_dump(mode="json"), provenance)
+
+
+def adapt_equation(config: Config, equation: Equation, signals: dict, theta: torch.Tensor,
+                   trainer: Trainer | None = None, held_out: dict | None = None) -> list[EquationResult]:
+    """Algorithm 1 on one state equation for a batch of T trials at once.
+
+    ``signals``: name -> (N,) or (T, N); ``theta``: nominal theta of every component, (K,) or
+    (T, K). Theta is re-estimated for the starting model (used as the start when
+    ``adaptation.tune_theta``) and for the adapted model; ``held_out`` signals (N,) are scored too.
+    Returns one :class:`EquationResult` per trial."""
+    a = config.adaptation
+    theta = theta if theta.dim() == 2 else theta.unsqueeze(0)
+    trials = max([theta.shape[0]] + [v.shape[0] for v in signals.values() if v.dim() == 2])
+    signals = {k: v.expand(trials, v.shape[-1]) for k, v in signals.items()}
+    theta = theta.expand(trials, -1)
+    data = EquationData.build(equation, signals, a.normalize)
+    theta_adjustable = theta[:, list(equation.adjustable)] * data.theta_scale
+    theta_fixed = theta[:, list(equation.fixed)]
+    tuned_start = tune_start(data, theta_fixed, a.hold_fixed)
+    if a.tune_theta:
+        theta_adjustable, theta_fixed = tuned_start.theta, tuned_start.theta_fixed
+    trainer = make_trainer(config) if trainer is None else trainer
+    start = torch.tensor([equation.components[i].start for i in equation.adjustable], dtype=data.y.dtype,
+                         device=data.y.device)
+    fit = trainer.fit(data, theta_adjustable, theta_fixed, start)
+    tuned_final = tune_adapted(data, fit.choices[fit.winner], fit.gamma, fit.theta_fixed, a.hold_fixed)
+    held = None if held_out is None else EquationData.build(equation, held_out)
+    tuning = Tuning(tuned_start, tuned_final, a.tune_theta, a.hold_fixed, held)
+    return [equation_result(equation, fit, theta[i], data.scale[i], i, tuning, data.theta_scale[i])
+            for i in range(trials)]
+
+
+@dataclass(frozen=True)
+class Tuning:
+    """Theta re-estimated for the starting and the adapted model, and the held-out data."""
+
+    start: Tuned
+    final: Tuned
+    used_for_start: bool
+    hold_fixed: bool
+    validation: EquationData | None = None
 
 
 def candidate_label(equation: Equation, choice) -> list[str]:
     return [equation.adjustments[int(f)].text for f in choice]
 
 
-def equation_result(equation: Equation, fit: Fit, theta: torch.Tensor, scale: torch.Tensor, trial: int = 0) -> EquationResult:
-    """One trial of a :class:`Fit` as an :class:`EquationResult`.
+def in_order(equation: Equation, adjustable, fixed) -> list[float]:
+    """Per-component values in the equation's order from the adjustable and fixed parts."""
+    slot = {i: k for k, i in enumerate(equation.adjustable)}
+    fixed_slot = {i: k for k, i in enumerate(equation.fixed)}
+    return [float(adjustable[slot[i]]) if i in slot else float(fixed[fixed_slot[i]])
+            for i in range(len(equation.components))]
 
-    With normalised adjustment functions (``f / s``) the printed theta absorbs ``s^-gamma`` so
-    the equation reads in the data's own units.
+
+def equation_result(equation: Equation, fit: Fit, theta: torch.Tensor, scale: torch.Tensor, trial: int = 0,
+                    tuning: Tuning | None = None, component_scale: torch.Tensor | None = None) -> EquationResult:
+    """One trial of a :class:`Fit` as an :class:`EquationResult`; ``theta`` is the trial's nominal
+    theta of every component (the starting equation shows the tuned one if it was the start).
+
+    With normalised adjustment functions (``f / s``) and components (``M / c``) the printed theta
+    absorbs ``s^-gamma / c`` so the equation reads in the data's own units.
     """
     winner = int(fit.winner[trial])
     choice = fit.choices[winner].tolist()
     gamma = fit.gamma[trial].tolist()
-    adjusted_theta = fit.theta[trial] * scale[fit.choices[winner]] ** (-fit.gamma[trial])
-    thetas, terms, adjustments, exponents = [], [], [], []
+    to_data_units = scale[fit.choices[winner]] ** (-fit.gamma[trial])
+    if component_scale is not None:
+        to_data_units = to_data_units / component_scale
+    thetas = in_order(equation, fit.theta[trial] * to_data_units, fit.theta_fixed[trial])
     slot = {i: k for k, i in enumerate(equation.adjustable)}
-    fixed_slot = {i: k for k, i in enumerate(equation.fixed)}
-    for i, _ in enumerate(equation.components):
-        if i in slot:
-            k = slot[i]
-            thetas.append(float(adjusted_theta[k]))
-            terms.append(format_component(equation, i, choice[k], gamma[k]))
-            adjustments.append(equation.adjustments[choice[k]].text)
-            exponents.append(gamma[k])
-        else:
-            thetas.append(float(fit.theta_fixed[trial, fixed_slot[i]]))
-            terms.append(format_component(equation, i, None, None))
-            adjustments.append(None)
-            exponents.append(None)
+    terms = [format_component(equation, i, choice[slot[i]], gamma[slot[i]]) if i in slot
+             else format_component(equation, i, None, None) for i in range(len(equation.components))]
+    adjustments = [equation.adjustments[choice[slot[i]]].text if i in slot else None
+                   for i in range(len(equation.components))]
+    exponents = [gamma[slot[i]] if i in slot else None for i in range(len(equation.components))]
     order = torch.argsort(fit.ranking_fitness[trial], descending=True).tolist()
     ranking = [{"candidate": c, "adjustments": candidate_label(equation, fit.choices[c]),
                 "fitness": float(fit.ranking_fitness[trial, c]),
@@ -102,11 +150,48 @@ def equation_result(equation: Equation, fit: Fit, theta: torch.Tensor, scale: to
                 "diverged": bool(fit.diverged[trial, c])} for c in order]
     pick = lambda d: {k: float(v[trial]) for k, v in d.items()}
     start_terms = [c.term.text for c in equation.components]
+    start_theta = theta.tolist()
+    extra = {}
+    if tuning is not None:
+        nominal = theta.to(fit.gamma.dtype)
+        start_units = 1.0 if component_scale is None else 1.0 / component_scale
+        tuned_theta = in_order(equation, tuning.start.theta[trial] * start_units, tuning.start.theta_fixed[trial])
+        if tuning.used_for_start:
+            start_theta = tuned_theta
+        final_theta = in_order(equation, tuning.final.theta[trial] * to_data_units, tuning.final.theta_fixed[trial])
+        error = lambda tuned: relative_error(nominal.cpu(), torch.tensor(tuned, dtype=nominal.dtype)).tolist()
+        extra["theta_tuning"] = {
+            "used_for_start": tuning.used_for_start, "hold_fixed": tuning.hold_fixed,
+            "start": {"equation": format_equation(equation.target, tuned_theta, start_terms), "theta": tuned_theta,
+                      **pick(tuning.start.measures), "nominal_error": error(tuned_theta)},
+            "final": {"equation": format_equation(equation.target, final_theta, terms), "theta": final_theta,
+                      **pick(tuning.final.measures), "nominal_error": error(final_theta)},
+        }
+        if tuning.validation is not None:
+            extra["validation"] = validation_measures(equation, fit, tuning, nominal, to_data_units, start_units, trial)
     return EquationResult(
         target=equation.target,
         equation=format_equation(equation.target, thetas, terms),
-        start_equation=format_equation(equation.target, theta.tolist(), start_terms),
+        start_equation=format_equation(equation.target, start_theta, start_terms),
         adjustments=adjustments, exponents=exponents, theta=thetas,
         start=pick(fit.start), final=pick(fit.final), ranking=ranking,
-        diverged=int(fit.diverged[trial].sum()),
+        diverged=int(fit.diverged[trial].sum()), **extra,
     )
+
+
+def validation_measures(equation: Equation, fit: Fit, tuning: Tuning, nominal: torch.Tensor,
+                        to_data_units: torch.Tensor, start_units, trial: int) -> dict:
+    """Measures on the held-out data of the starting, tuned starting, adapted and tuned adapted
+    models (one-step, algebraic; the held-out data are not normalised: theta is in data units)."""
+    held = tuning.validation
+    choice = fit.choices[fit.winner[trial]].unsqueeze(0)
+    gamma = fit.gamma[trial].unsqueeze(0)
+    adjustable, fixed = list(equation.adjustable), list(equation.fixed)
+    models = {
+        "start": (None, nominal[adjustable], nominal[fixed]),
+        "start_tuned": (None, tuning.start.theta[trial] * start_units, tuning.start.theta_fixed[trial]),
+        "final": (choice, fit.theta[trial] * to_data_units, fit.theta_fixed[trial]),
+        "final_tuned": (choice, tuning.final.theta[trial] * to_data_units, tuning.final.theta_fixed[trial]),
+    }
+    return {name: {k: float(v[0]) for k, v in measure_model(held, c, gamma, th.unsqueeze(0), tf.unsqueeze(0)).items()}
+            for name, (c, th, tf) in models.items()}

@@ -34,7 +34,10 @@ class EquationData:
     """One state equation's signals on the samples, batched over trials.
 
     ``log_f`` and ``sign_f`` hold ``log max(|f|/scale, FLOOR)`` and the sign factor of every
-    adjustment function; ``scale`` is 1 or the function's RMS (``normalize='rms'``).
+    adjustment function; ``scale`` is 1 or the function's RMS (``normalize='rms'``). With
+    ``normalize='rms'`` every adjustable component ``M_i`` is divided by its RMS too
+    (``component_scale``), so every column the step sees (Eq. 15-17) is dimensionless and a theta
+    in the data's units is ``theta_normalised * scale^-gamma / component_scale``.
     """
 
     y: torch.Tensor  # (T, N) target derivative
@@ -43,6 +46,14 @@ class EquationData:
     log_f: torch.Tensor  # (T, N, F)
     sign_f: torch.Tensor  # (T, N, F)
     scale: torch.Tensor  # (T, F)
+    component_scale: torch.Tensor | None = None  # (T, Q); None means 1
+
+    @property
+    def theta_scale(self) -> torch.Tensor:
+        """Factor (T, Q) from a component's theta in data units to normalised units."""
+        if self.component_scale is None:
+            return torch.ones_like(self.components[:, 0])
+        return self.component_scale
 
     @classmethod
     def build(cls, equation: Equation, signals: Mapping[str, torch.Tensor], normalize: str = "none") -> "EquationData":
@@ -61,19 +72,24 @@ class EquationData:
         stack = lambda items: torch.stack(items, -1) if items else y.new_zeros(shape + (0,))
         f = stack([evaluate(a) for a in equation.adjustments])
         magnitude = torch.tensor([a.is_magnitude for a in equation.adjustments], device=y.device)
+        components = stack([terms[i] for i in equation.adjustable])
+        rms = lambda v: torch.sqrt((v * v).mean(-2)).clamp_min(torch.finfo(v.dtype).tiny)
         if normalize == "rms":
-            scale = torch.sqrt((f * f).mean(-2)).clamp_min(torch.finfo(f.dtype).tiny)
+            scale, component_scale = rms(f), rms(components)
+            components = components / component_scale.unsqueeze(-2)
         else:
             scale = torch.ones(f.shape[:1] + f.shape[-1:], dtype=f.dtype, device=f.device)
+            component_scale = torch.ones(components.shape[:1] + components.shape[-1:], dtype=f.dtype, device=f.device)
         log_f = torch.log((f.abs() / scale.unsqueeze(-2)).clamp_min(FLOOR))
         sign_f = torch.where(magnitude, torch.ones_like(f), torch.sign(f))
         return cls(
             y=y,
-            components=stack([terms[i] for i in equation.adjustable]),
+            components=components,
             fixed_components=stack([terms[i] for i in equation.fixed]),
             log_f=log_f,
             sign_f=sign_f,
             scale=scale,
+            component_scale=component_scale,
         )
 
     def select(self, choice: torch.Tensor) -> "Selection":

@@ -69,9 +69,12 @@ class DataConfig(_Section):
     parametric_error: float = Field(0.0, ge=0, description="total relative error of the nominal parameters")
     noise: float = Field(0.0, ge=0, description="simulated measurement noise, as a fraction of each signal's std")
     seed: int = 0
-    derivatives: Literal["exact", "savgol", "spline", "loess", "finite_difference"] = Field(
-        "exact", description="how unmeasured derivatives are estimated ('exact': simulated systems only)")
-    window: Optional[int] = Field(None, ge=3, description="derivative estimator window, in samples")
+    derivatives: Literal["auto", "exact", "savgol", "spline", "loess", "finite_difference"] = Field(
+        "auto", description="how unmeasured derivatives are estimated; 'auto': exact for a noise-free simulated "
+                            "system, else savgol; 'exact': every signal the model reads is given")
+    window: Optional[int] = Field(None, ge=3, description="derivative estimator window in samples "
+                                                          "(default: chosen from the noise floor)")
+    resample: bool = Field(False, description="interpolate irregularly sampled data onto a uniform grid")
 
 
 class AdaptationConfig(_Section):
@@ -84,6 +87,8 @@ class AdaptationConfig(_Section):
     step_size: Literal["eq20", "one", "line_search"] = Field("eq20", description="mu by Eq. 20, mu = 1, or backtracking")
     theta: Literal["fixed", "varpro"] = Field("fixed", description="nominal theta, or re-solved each step (variable projection)")
     normalize: Literal["none", "rms"] = Field("none", description="divide each adjustment function by its RMS")
+    tune_theta: bool = Field(False, description="start from theta re-estimated by least squares on the starting model")
+    hold_fixed: bool = Field(False, description="theta re-estimation keeps the fixed components' theta at nominal")
     damping: float = Field(0.0, ge=0, description="Levenberg-Marquardt damping of the step")
     gamma_limit: float = Field(20.0, gt=0, description="|gamma| beyond which a candidate is marked diverged")
     chunk_size: int = Field(4096, ge=1, description="candidates per batched chunk (bounds memory)")
@@ -109,7 +114,9 @@ def load_config(source: Union[str, Path, dict], overrides: list[str] = ()) -> Co
         except FileNotFoundError:
             raise ConfigError("", f"{path}: no such config file") from None
         except yaml.YAMLError as exc:
-            raise ConfigError("", f"{path}: malformed YAML: {exc}") from None
+            raise ConfigError("", f"{path}: malformed YAML{_yaml_place(exc)}") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError("", f"{path}: cannot read the config: {exc}") from None
         if not isinstance(raw, dict):
             raise ConfigError("", f"{path}: the top level must be a mapping")
     raw = _apply_overrides(raw, overrides)
@@ -119,6 +126,14 @@ def load_config(source: Union[str, Path, dict], overrides: list[str] = ()) -> Co
         error = exc.errors()[0]
         key = ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in error["loc"]).replace(".[", "[")
         raise ConfigError(key, f"{error['msg']} (in {origin})") from None
+
+
+def _yaml_place(exc: yaml.YAMLError) -> str:
+    """`` at line L, column C: problem`` from a YAML error, on one line."""
+    mark = getattr(exc, "problem_mark", None)
+    place = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    return f"{place}: {problem}"
 
 
 def _apply_overrides(raw: dict, overrides) -> dict:
@@ -138,7 +153,7 @@ def _apply_overrides(raw: dict, overrides) -> dict:
         try:
             node[parts[-1]] = yaml.safe_load(value)
         except yaml.YAMLError as exc:
-            raise ConfigError(key, f"malformed value {value!r}: {exc}") from None
+            raise ConfigError(key, f"malformed value {value!r}{_yaml_place(exc)}") from None
     return raw
 
 

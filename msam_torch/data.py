@@ -1,15 +1,19 @@
-"""Measurements in: the signals every equation reads, from a simulated system or a data file.
+"""Measurements in: the signals every equation reads, from a simulated system, a data file
+(CSV or Parquet) or an in-memory table (pandas DataFrame, or a mapping of arrays or tensors).
 
 A *signal* is a 1-D tensor over the samples: states, inputs, their time derivatives and ``t``.
 Signals the model reads but the data do not hold are estimated from the measured signal of the
 same base name (``x_ddot`` from ``x`` or ``x_dot``) with :mod:`msam_torch.derivatives`; measured
 states are replaced by their smoothed estimate at the same time, so regressors and targets share
-one filter.
+one filter. Every check names the place: the file (or table), the column, the row (the file's
+line for CSV files, the 0-based row otherwise) and the config key.
 """
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Mapping, Union
 
 import numpy as np
 import pandas as pd
@@ -18,8 +22,11 @@ import torch
 from .config import DataConfig, RangeConfig
 from .derivatives import estimate, noise_level
 from .errors import ConfigError, DataError
-from .spec import ModelSpec, derivative_name, split_derivative
+from .spec import ModelSpec, split_derivative
 from .systems import get_system, simulate
+
+Table = Union[pd.DataFrame, Mapping[str, object]]
+REGULAR = 1e-2  # sampling is regular when every step is within 1 % of the median step
 
 
 @dataclass(frozen=True)
@@ -35,63 +42,132 @@ class Dataset:
 
 
 def load_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str = ".", dtype=torch.float64,
+                  frame: Table | None = None, validation_frame: Table | None = None,
                   ) -> tuple[Dataset, Dataset | None]:
-    """Training and (if configured) validation datasets for ``spec``."""
-    if (config.system is None) == (config.file is None):
+    """Training and (if configured) validation datasets for ``spec``.
+
+    ``frame`` (and ``validation_frame``) replace ``data.file`` (``data.validation_file``) with an
+    in-memory table; the column mapping, time, ranges and estimator still come from ``config``."""
+    if frame is None and (config.system is None) == (config.file is None):
         raise ConfigError("data", "give exactly one of 'system' (simulated) or 'file' (measured)")
-    if config.system is not None:
+    if config.derivatives == "auto":
+        exact = frame is None and config.system is not None and config.noise == 0
+        config = config.model_copy(update={"derivatives": "exact" if exact else "savgol"})
+    if frame is None and config.system is not None:
         return simulated_dataset(config, spec, dtype), None
     base_dir = Path(base_dir)
-    frame, source = read_frame(base_dir / config.file)
-    train = measured_dataset(select_range(frame, config.train, config, source, "data.train"), config, spec, source, dtype)
+    table, source = (as_frame(frame, "data frame") if frame is not None
+                     else read_frame(base_dir / config.file))
+    train = measured_dataset(select_range(table, config.train, config, source, "data.train"),
+                             config, spec, f"{source} (data.train)", dtype)
     validation = None
-    if config.validation_file is not None:
-        frame, source = read_frame(base_dir / config.validation_file)
-        validation = measured_dataset(frame, config, spec, source, dtype)
+    if validation_frame is not None or config.validation_file is not None:
+        held, held_source = (as_frame(validation_frame, "validation frame") if validation_frame is not None
+                             else read_frame(base_dir / config.validation_file))
+        validation = measured_dataset(held, config, spec, held_source, dtype)
     elif config.validation is not None:
-        part = select_range(frame, config.validation, config, source, "data.validation")
-        validation = measured_dataset(part, config, spec, source, dtype)
+        part = select_range(table, config.validation, config, source, "data.validation")
+        validation = measured_dataset(part, config, spec, f"{source} (data.validation)", dtype)
     return train, validation
 
 
+def as_frame(data: Table, source: str) -> tuple[pd.DataFrame, str]:
+    """A DataFrame from a DataFrame or a mapping of equal-length 1-D arrays or tensors."""
+    if isinstance(data, pd.DataFrame):
+        frame = data.reset_index(drop=True)
+    elif isinstance(data, Mapping):
+        columns = {}
+        for name, value in data.items():
+            array = value.detach().cpu().numpy() if torch.is_tensor(value) else np.asarray(value)
+            if array.ndim != 1:
+                raise DataError(f"{source}: column {name!r} must be 1-D, got shape {array.shape}")
+            columns[str(name)] = array
+        if len({a.size for a in columns.values()}) > 1:
+            sizes = {k: a.size for k, a in columns.items()}
+            raise DataError(f"{source}: columns differ in length {sizes}")
+        frame = pd.DataFrame(columns)
+    else:
+        raise DataError(f"{source}: expected a pandas DataFrame or a mapping of column name to array, "
+                        f"got {type(data).__name__}")
+    frame.index.name = "row"
+    return frame, source
+
+
 def read_frame(path: Path) -> tuple[pd.DataFrame, str]:
-    """Read a CSV or Parquet file; unnamed empty columns (trailing commas) are dropped."""
+    """Read a CSV or Parquet file. CSV rows are indexed by their line in the file; unnamed
+    empty columns (trailing commas) are dropped."""
     source = str(path)
-    if not path.exists():
+    if not path.is_file():
         raise DataError(f"{source}: no such data file")
+    parquet = path.suffix.lower() in (".parquet", ".pq")
     try:
-        if path.suffix.lower() in (".parquet", ".pq"):
+        if parquet:
             frame = pd.read_parquet(path)
+            frame = frame.reset_index(drop=True)
+            frame.index.name = "row"
         else:
             frame = pd.read_csv(path, comment="#", skipinitialspace=True)
-    except Exception as exc:  # pandas raises many types for unreadable files
-        raise DataError(f"{source}: cannot read as {'Parquet' if path.suffix.lower() in ('.parquet', '.pq') else 'CSV'}: {exc}") from None
-    frame = frame.loc[:, [c for c in frame.columns if not (str(c).startswith("Unnamed") and frame[c].isna().all())]]
-    return frame, source
+            lines = _data_lines(path)
+            if len(lines) == len(frame):  # else (quoted line breaks) fall back to 0-based rows
+                frame.index = lines
+            frame.index.name = "line" if len(lines) == len(frame) else "row"
+    except (DataError, MemoryError):
+        raise
+    except Exception as exc:  # pandas and pyarrow raise many types for unreadable files
+        kind = "Parquet" if parquet else "CSV"
+        raise DataError(f"{source}: cannot read as {kind}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+    keep = [c for c in frame.columns if not (str(c).startswith("Unnamed") and frame[c].isna().all())]
+    return frame.loc[:, keep], source
+
+
+def _data_lines(path: Path) -> list[int]:
+    """1-based line numbers of a CSV file's data rows (blank and comment lines skipped)."""
+    lines = []
+    with open(path, errors="replace") as handle:
+        for number, line in enumerate(handle, 1):
+            if line.strip() and not line.lstrip().startswith("#"):
+                lines.append(number)
+    return lines[1:]  # the first is the header
+
+
+def _rows(frame: pd.DataFrame, positions: np.ndarray, limit: int = 5) -> str:
+    label = frame.index.name or "row"
+    shown = ", ".join(str(frame.index[int(i)]) for i in positions[:limit])
+    return f"{label}{'s' if positions.size > 1 else ''} {shown}{' ...' if positions.size > limit else ''}"
+
+
+def column(frame: pd.DataFrame, name: str, source: str, key: str) -> np.ndarray:
+    """A numeric column without NaN or inf; errors name the file, column, rows and config key."""
+    if name not in frame.columns:
+        names = [str(c) for c in frame.columns]
+        lower = {n.lower(): n for n in names}
+        close = difflib.get_close_matches(str(name).lower(), list(lower), n=1)
+        hint = f"; did you mean {lower[close[0]]!r}?" if close else ""
+        raise DataError(f"{source}: no column {name!r} (asked for by {key}); columns are {names}{hint}")
+    raw = frame[name]
+    values = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=float)
+    for bad, what in ((raw.isna().to_numpy(), "missing or NaN"),
+                      (np.isnan(values) & ~raw.isna().to_numpy(), "non-numeric"),
+                      (np.isinf(values), "infinite")):
+        positions = np.flatnonzero(bad)
+        if positions.size:
+            raise DataError(f"{source}: column {name!r} ({key}) has {positions.size} {what} value"
+                            f"{'s' if positions.size > 1 else ''} at {_rows(frame, positions)}")
+    return values
 
 
 def time_axis(frame: pd.DataFrame, config: DataConfig, source: str) -> np.ndarray:
     if config.time is not None:
         return column(frame, config.time, source, "data.time")
     if config.sample_time is None:
-        raise ConfigError("data", "give a 'time' column or a 'sample_time'")
+        raise ConfigError("data.time", "give a time column ('time') or a sampling period ('sample_time')")
     return np.arange(len(frame)) * config.sample_time
 
 
-def column(frame: pd.DataFrame, name: str, source: str, key: str) -> np.ndarray:
-    """A numeric column without NaN or inf; errors name the file, column and rows."""
-    if name not in frame.columns:
-        raise DataError(f"{source}: no column {name!r} (for {key}); columns are {list(map(str, frame.columns))}")
-    values = pd.to_numeric(frame[name], errors="coerce").to_numpy(dtype=float)
-    bad = np.flatnonzero(~np.isfinite(values))
-    if bad.size:
-        rows = ", ".join(str(int(frame.index[i]) + 2) for i in bad[:5]) + (" ..." if bad.size > 5 else "")
-        raise DataError(f"{source}: column {name!r} has {bad.size} missing, non-numeric, NaN or inf values "
-                        f"(file rows {rows}, counting the header as row 1)")
-    return values
-
-
 def select_range(frame: pd.DataFrame, rng: RangeConfig, config: DataConfig, source: str, key: str) -> pd.DataFrame:
+    """Rows of ``frame`` in ``rng`` (inclusive bounds, by time or 0-based sample index)."""
+    if len(frame) == 0:
+        raise DataError(f"{source}: the table has no rows")
     axis = np.arange(len(frame)) if rng.by == "index" else time_axis(frame, config, source)
     keep = np.ones(len(frame), dtype=bool)
     if rng.start is not None:
@@ -99,35 +175,62 @@ def select_range(frame: pd.DataFrame, rng: RangeConfig, config: DataConfig, sour
     if rng.stop is not None:
         keep &= axis <= rng.stop
     if not keep.any():
-        raise ConfigError(key, f"the range [{rng.start}, {rng.stop}] by {rng.by} selects no samples of {source}")
+        span = f"{axis.min():.6g} to {axis.max():.6g}" if axis.size else "nothing"
+        raise ConfigError(key, f"the range [{rng.start}, {rng.stop}] by {rng.by} selects no samples of "
+                               f"{source} (its {rng.by} runs from {span})")
     return frame.loc[keep]
 
 
 def measured_dataset(frame: pd.DataFrame, config: DataConfig, spec: ModelSpec, source: str, dtype) -> Dataset:
+    """Signals of ``spec`` from a table: time checks, column mapping, resampling, estimation."""
+    if len(frame) < 2:
+        raise DataError(f"{source}: {len(frame)} sample{'s' if len(frame) != 1 else ''}; need at least 2")
     t = time_axis(frame, config, source)
-    check_time(t, source)
+    bases = {split_derivative(s)[0] for s in spec.signals}
     measured = {}
     for signal, name in config.columns.items():
-        if signal not in spec.signals and split_derivative(signal)[0] not in {split_derivative(s)[0] for s in spec.signals}:
-            raise ConfigError(f"data.columns.{signal}", f"{signal!r} is not a signal of the model")
+        if signal not in spec.signals and split_derivative(signal)[0] not in bases:
+            raise ConfigError(f"data.columns.{signal}", f"{signal!r} is not a signal of the model "
+                                                        f"(signals: {', '.join(sorted(spec.signals - {'t'}))})")
         measured[signal] = column(frame, name, source, f"data.columns.{signal}")
-    return build_dataset(t, measured, config, spec, {"source": source}, dtype)
+    info = {"source": source}
+    estimated = config.derivatives != "exact"
+    t, measured, info = check_time(frame, t, measured, source, config, estimated, info)
+    return build_dataset(t, measured, config, spec, info, dtype, source)
 
 
-def check_time(t: np.ndarray, source: str) -> None:
+def check_time(frame: pd.DataFrame, t: np.ndarray, measured: dict, source: str, config: DataConfig,
+               estimated: bool, info: dict) -> tuple[np.ndarray, dict, dict]:
+    """Strictly increasing time; a uniform grid where derivatives are estimated (or resampled)."""
     steps = np.diff(t)
-    if (steps <= 0).any():
-        i = int(np.flatnonzero(steps <= 0)[0])
-        raise DataError(f"{source}: time is not strictly increasing at file row {i + 3} "
-                        f"({t[i]!r} then {t[i + 1]!r}); sort the file or remove duplicated times")
-    if steps.size and (steps.max() - steps.min()) > 1e-6 * np.median(steps):
-        raise DataError(f"{source}: irregular sampling (steps from {steps.min():.6g} to {steps.max():.6g}); "
-                        "resample to a uniform grid first, e.g. frame.set_index(time).resample(...).interpolate()")
+    where = "time column " + repr(config.time) if config.time else "time"
+    duplicated = np.flatnonzero(steps == 0)
+    if duplicated.size:
+        raise DataError(f"{source}: {where} has duplicated values ({t[duplicated[0]]!r}) at "
+                        f"{_rows(frame, duplicated + 1)}; remove or average the duplicates")
+    backwards = np.flatnonzero(steps < 0)
+    if backwards.size:
+        raise DataError(f"{source}: {where} is not increasing at {_rows(frame, backwards + 1)} "
+                        f"({t[backwards[0]]!r} then {t[backwards[0] + 1]!r}); sort the data by time")
+    median = float(np.median(steps))
+    irregular = np.flatnonzero(np.abs(steps - median) > REGULAR * median)
+    if not irregular.size or not estimated:
+        return t, measured, {**info, "sample_time": median}
+    if not config.resample:
+        raise DataError(f"{source}: irregular sampling in {where} (median step {median:.6g}, but steps "
+                        f"from {steps.min():.6g} to {steps.max():.6g}, first at {_rows(frame, irregular + 1)}); "
+                        f"the derivative estimators need a uniform grid: set data.resample=true to interpolate "
+                        f"linearly onto one, or resample the data yourself")
+    grid = t[0] + median * np.arange(int(np.floor((t[-1] - t[0]) / median + 1e-9)) + 1)
+    resampled = {k: np.interp(grid, t, v) for k, v in measured.items()}
+    return grid, resampled, {**info, "sample_time": median,
+                             "resampled": {"from": int(t.size), "to": int(grid.size), "method": "linear"}}
 
 
 def build_dataset(t: np.ndarray, measured: dict[str, np.ndarray], config: DataConfig, spec: ModelSpec,
-                  info: dict, dtype) -> Dataset:
-    """Estimate every signal ``spec`` reads from the measured ones."""
+                  info: dict, dtype, source: str = "data") -> Dataset:
+    """Estimate every signal ``spec`` reads from the measured ones, then check they vary where
+    the method needs variation (targets for the correlation of Eq. 19, adjustment functions)."""
     signals = {"t": t}
     estimates = {}
     for name in sorted(spec.signals - {"t"}):
@@ -139,23 +242,47 @@ def build_dataset(t: np.ndarray, measured: dict[str, np.ndarray], config: DataCo
                          and split_derivative(m)[1] <= order)
         if not sources:
             raise ConfigError("data.columns", f"the model reads {name!r} but no measured column gives {base!r} "
-                              f"or a lower derivative of it")
+                              f"or a lower derivative of it (measured: {', '.join(sorted(measured)) or 'none'})")
         measured_order, source_name = sources[-1]
         if config.derivatives == "exact":
             raise ConfigError("data.derivatives", f"{name!r} is not measured: choose an estimator "
                               "(savgol, spline, loess or finite_difference)")
-        need = order - measured_order
-        key = (source_name,)
-        if key not in estimates:
+        if source_name not in estimates:
             highest = max(split_derivative(s)[1] for s in spec.signals if split_derivative(s)[0] == base) - measured_order
-            estimates[key] = estimate(t, measured[source_name], highest, config.derivatives, config.window, source_name)
-        signals[name] = estimates[key].values[need]
-    for name in spec.signals - set(signals):
-        raise ConfigError("data.columns", f"the model reads {name!r}, which the data do not give")
+            column_name = config.columns.get(source_name, source_name)
+            estimates[source_name] = estimate(t, measured[source_name], highest, config.derivatives, config.window,
+                                              f"{source}: column {column_name!r} ({source_name})")
+        signals[name] = estimates[source_name].values[order - measured_order]
     info = {**info, "samples": int(t.size), "measured": sorted(measured),
-            "derivatives": {k[0]: e.info for k, e in estimates.items()} or config.derivatives,
+            "derivatives": {k: e.info for k, e in estimates.items()} or config.derivatives,
             "noise_level": {k: noise_level(v) for k, v in measured.items()}}
-    return Dataset({k: torch.as_tensor(np.asarray(v), dtype=dtype) for k, v in signals.items()}, info)
+    tensors = {k: torch.tensor(np.asarray(v, dtype=float), dtype=dtype) for k, v in signals.items()}
+    check_variation(spec, tensors, source)
+    return Dataset(tensors, info)
+
+
+def check_variation(spec: ModelSpec, signals: Mapping[str, torch.Tensor], source: str) -> None:
+    """Targets must vary (the fitness correlates with them, Eq. 19); so must every adjustment
+    function's magnitude, or its exponent has nothing to act on."""
+    for e, equation in enumerate(spec.equations):
+        target = signals[equation.target]
+        if float(target.max() - target.min()) == 0.0:
+            raise DataError(f"{source}: the target {equation.target!r} of model.equations[{e}] is constant: "
+                            "the fitness correlation (Eq. 19) needs it to vary")
+        expressions = [(f"components[{i}].term", c.term) for i, c in enumerate(equation.components)]
+        expressions += [(f"adjustments[{i}]", f) for i, f in enumerate(equation.adjustments)]
+        for key, expression in expressions:
+            value = torch.as_tensor(expression(signals))
+            bad = torch.nonzero(~torch.isfinite(value.expand_as(target))).flatten()
+            if bad.numel():
+                raise DataError(f"{source}: {expression.text!r} (model.equations[{e}].{key}) is not finite at "
+                                f"{bad.numel()} samples (first at sample {int(bad[0])}, 0-based)")
+        for i, function in enumerate(equation.adjustments):
+            magnitude = torch.as_tensor(function(signals)).abs().expand_as(target)
+            if float(magnitude.max() - magnitude.min()) == 0.0:
+                raise DataError(f"{source}: adjustment function {function.text!r} (model.equations[{e}]"
+                                f".adjustments[{i}]) has constant magnitude on the data, so its exponent "
+                                "cannot be identified")
 
 
 def simulated_dataset(config: DataConfig, spec: ModelSpec, dtype) -> Dataset:
@@ -165,7 +292,7 @@ def simulated_dataset(config: DataConfig, spec: ModelSpec, dtype) -> Dataset:
     missing = sorted(spec.signals - set(simulated))
     if missing:
         raise ConfigError("model", f"system {config.system!r} has no signals {missing} (it has {sorted(simulated)})")
-    info = {"source": f"system:{config.system}", "noise": config.noise}
+    info = {"source": f"system:{config.system}", "noise": config.noise, "seed": config.seed}
     if config.derivatives == "exact" and config.noise == 0:
         signals = {k: torch.as_tensor(v, dtype=dtype) for k, v in simulated.items()}
         return Dataset(signals, {**info, "samples": int(simulated["t"].size), "derivatives": "exact"})
@@ -178,4 +305,4 @@ def simulated_dataset(config: DataConfig, spec: ModelSpec, dtype) -> Dataset:
     if config.derivatives == "exact":
         raise ConfigError("data.derivatives", "with noise, derivatives must be estimated: choose savgol, spline, "
                           "loess or finite_difference")
-    return build_dataset(simulated["t"], measured, config, spec, info, dtype)
+    return build_dataset(simulated["t"], measured, config, spec, info, dtype, info["source"])

@@ -1,12 +1,21 @@
 """State and derivative estimation from sampled signals, with well-kept library code.
 
 Estimators (all return the smoothed signal and its first ``order`` derivatives):
-- ``savgol``: Savitzky-Golay (``scipy.signal.savgol_filter``), cubic, the default;
-- ``spline``: penalised smoothing spline (``scipy.interpolate.make_smoothing_spline``, GCV);
-- ``loess``: locally weighted regression (statsmodels ``lowess``, the paper's choice), then a
-  cubic interpolating spline for the derivatives;
+- ``savgol``: Savitzky-Golay, local cubic (``scipy.signal.savgol_filter``), the default;
+- ``spline``: penalised cubic smoothing spline, penalty by generalised cross-validation
+  (``scipy.interpolate.make_smoothing_spline``);
+- ``loess``: locally weighted linear regression (statsmodels ``lowess``, the paper's choice), then
+  a cubic interpolating spline for the derivatives;
 - ``finite_difference``: no smoothing, second-order central differences (``numpy.gradient``).
-Sampling must be uniform for ``savgol`` and ``finite_difference``.
+
+Window rule (``savgol`` and ``loess`` when no window is given): the smoother should pass what
+the record holds above its noise and stop where the noise takes over, the cut-off of a Wiener
+filter. :func:`choose_window` finds the lowest frequency at which the signal's power (tapered,
+band-averaged periodogram) falls to the white-noise power set by :func:`noise_level`, and picks the
+window whose cut-off frequency is there (Schafer 2011: ``f_c ~ (p + 1) / (3.2 w - 4.6)`` cycles per
+sample for a local polynomial of degree ``p``). Differentiation multiplies signal and noise alike
+by ``omega^k``, so the same cut-off serves every derivative order. Noise-free records get the
+smallest window; longer or noisier records get wider ones.
 """
 from __future__ import annotations
 
@@ -17,79 +26,24 @@ import numpy as np
 from .errors import DataError
 
 METHODS = ("savgol", "spline", "loess", "finite_difference")
+SAVGOL_DEGREE = 3  # local cubic: unbiased for the first two derivatives of a cubic
+LOESS_DEGREE = 1  # statsmodels lowess fits local lines
+BAND = 9  # periodogram bins averaged before comparing with the noise floor
 
 
 @dataclass(frozen=True)
 class Estimate:
-    """``values[k]`` is the k-th derivative (k = 0 is the smoothed signal)."""
+    """``values[k]`` is the k-th derivative (k = 0 is the smoothed signal); ``info`` says how."""
 
     values: list[np.ndarray]
-    method: str
-    window: int | None
-
-    @property
-    def info(self) -> dict:
-        return {"method": self.method, "window": self.window}
-
-
-def default_window(n: int, order: int) -> int:
-    """An odd Savitzky-Golay window: about 2 % of the record, at least enough for the order."""
-    window = max(2 * (order + 2) + 1, int(0.02 * n) | 1)
-    return window
-
-
-def estimate(t: np.ndarray, y: np.ndarray, order: int, method: str = "savgol", window: int | None = None,
-             name: str = "signal") -> Estimate:
-    """Smooth ``y(t)`` and estimate derivatives up to ``order``; errors name ``name``."""
-    t = np.asarray(t, dtype=float)
-    y = np.asarray(y, dtype=float)
-    n = y.size
-    if method not in METHODS:
-        raise DataError(f"{name}: unknown derivative estimator {method!r} (known: {', '.join(METHODS)})")
-    if method == "finite_difference":
-        if n < order + 2:
-            raise DataError(f"{name}: {n} samples are too few for a derivative of order {order}")
-        values = [y]
-        for _ in range(order):
-            values.append(np.gradient(values[-1], t, edge_order=2))
-        return Estimate(values, method, None)
-    if method == "savgol":
-        from scipy.signal import savgol_filter
-
-        window = default_window(n, order) if window is None else window
-        if window % 2 == 0:
-            window += 1
-        polyorder = min(3, window - 1)
-        if polyorder < order:
-            polyorder = order
-        if n < window or window <= polyorder:
-            raise DataError(f"{name}: {n} samples are fewer than the derivative window of {window} samples "
-                            f"(set data.window smaller, at least {polyorder + 1 + (polyorder % 2 == 0)})")
-        dt = float(np.median(np.diff(t)))
-        values = [savgol_filter(y, window, polyorder, deriv=k, delta=dt, mode="interp") for k in range(order + 1)]
-        return Estimate(values, method, window)
-    if method == "spline":
-        from scipy.interpolate import make_smoothing_spline
-
-        if n < 5:
-            raise DataError(f"{name}: {n} samples are too few for a smoothing spline (need 5)")
-        spline = make_smoothing_spline(t, y)
-        return Estimate([spline(t, nu=k) for k in range(order + 1)], method, None)
-    from scipy.interpolate import CubicSpline
-    from statsmodels.nonparametric.smoothers_lowess import lowess
-
-    window = default_window(n, order) if window is None else window
-    if n < max(window, 4):
-        raise DataError(f"{name}: {n} samples are fewer than the LOESS window of {window} samples")
-    smooth = lowess(y, t, frac=min(1.0, window / n), it=0, return_sorted=False)
-    spline = CubicSpline(t, smooth)
-    return Estimate([smooth] + [spline(t, nu=k) for k in range(1, order + 1)], method, window)
+    info: dict
 
 
 def noise_level(y: np.ndarray) -> float:
     """Rough standard deviation of white measurement noise from third differences.
 
-    ``diff(y, 3)`` of a smooth signal is ~0, and of white noise has variance ``20 sigma^2``.
+    ``diff(y, 3)`` of a smooth, finely sampled signal is ~0, and of white noise has variance
+    ``20 sigma^2``; the median absolute deviation makes the estimate robust to a few outliers.
     """
     y = np.asarray(y, dtype=float)
     if y.size < 5:
@@ -97,3 +51,99 @@ def noise_level(y: np.ndarray) -> float:
     d = np.diff(y, 3)
     mad = np.median(np.abs(d - np.median(d))) * 1.4826
     return float(mad / np.sqrt(20.0))
+
+
+def cutoff_frequency(y: np.ndarray, sigma: float) -> float:
+    """Lowest frequency (cycles per sample) where the band-averaged periodogram of the linearly
+    detrended, Hann-tapered signal falls to twice the floor of white noise of std ``sigma``: there
+    the signal's power no longer exceeds the noise's (the Wiener gain falls to 1/2)."""
+    n = y.size
+    index = np.arange(n)
+    detrended = y - np.polyval(np.polyfit(index, y, 1), index)
+    taper = np.hanning(n)
+    power = np.abs(np.fft.rfft(detrended * taper)) ** 2
+    from scipy.ndimage import uniform_filter1d
+
+    band = uniform_filter1d(power, size=min(BAND, power.size), mode="nearest")
+    below = np.flatnonzero(band <= 2.0 * sigma**2 * np.sum(taper**2))  # signal power <= noise power
+    freq = np.fft.rfftfreq(n)
+    return float(freq[below[0]] if below.size else freq[-1])
+
+
+def choose_window(y: np.ndarray, degree: int) -> tuple[int, float]:
+    """Odd window (samples) of a degree-``degree`` local fit whose cut-off matches the noise floor;
+    returns the window and the cut-off in cycles per sample."""
+    n = y.size
+    cutoff = max(cutoff_frequency(y, noise_level(y)), 1.0 / n)
+    window = int(round(((degree + 1) / cutoff + 4.6) / 3.2)) | 1
+    smallest = (degree + 2) | 1
+    largest = n if n % 2 else n - 1
+    return max(smallest, min(window, largest)), cutoff
+
+
+def estimate(t: np.ndarray, y: np.ndarray, order: int, method: str = "savgol", window: int | None = None,
+             name: str = "signal") -> Estimate:
+    """Smooth ``y(t)`` and estimate derivatives up to ``order``; errors name ``name``.
+
+    ``info`` records the method, the window (samples, ``None`` where not windowed), how it was
+    chosen, the local degree and the noise estimate, for the result's provenance."""
+    try:
+        with np.errstate(all="ignore"):
+            result = _estimate(t, y, order, method, window, name)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # the libraries' numeric failures
+        raise DataError(f"{name}: the {method} estimator failed: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+    if not all(np.isfinite(v).all() for v in result.values):
+        raise DataError(f"{name}: the {method} estimates are not finite (values too large or too close in time?)")
+    return result
+
+
+def _estimate(t, y, order, method, window, name) -> Estimate:
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    n = y.size
+    if method not in METHODS:
+        raise DataError(f"{name}: unknown derivative estimator {method!r} (known: {', '.join(METHODS)})")
+    if order > 0 and n > 1 and np.ptp(y) == 0:
+        raise DataError(f"{name}: the signal is constant, so its derivatives carry no information")
+    info = {"method": method, "window": None, "window_rule": None, "noise_std": noise_level(y)}
+    if method == "finite_difference":
+        if n < order + 2:
+            raise DataError(f"{name}: {n} samples are too few for finite differences of order {order} "
+                            f"(need {order + 2})")
+        values = [y]
+        for _ in range(order):
+            values.append(np.gradient(values[-1], t, edge_order=2))
+        return Estimate(values, info)
+    if method == "spline":
+        from scipy.interpolate import make_smoothing_spline
+
+        if n < 5:
+            raise DataError(f"{name}: {n} samples are too few for a smoothing spline (need 5)")
+        spline = make_smoothing_spline(t, y)
+        return Estimate([spline(t, nu=k) for k in range(order + 1)], {**info, "window_rule": "gcv", "degree": 3})
+    degree = max(SAVGOL_DEGREE, order) if method == "savgol" else LOESS_DEGREE
+    smallest = (degree + 2) | 1
+    if n < smallest:
+        raise DataError(f"{name}: {n} samples are fewer than the smallest {method} window of {smallest} samples")
+    rule = "given"
+    if window is None:
+        window, cutoff = choose_window(y, degree)
+        rule = f"noise floor (cut-off {cutoff:.4g} cycles/sample)"
+    if method == "savgol" and window % 2 == 0:
+        window += 1
+    if window > n or window < smallest:
+        raise DataError(f"{name}: {n} samples do not fit the derivative window of {window} samples "
+                        f"(data.window must lie between {smallest} and {n})")
+    info = {**info, "window": int(window), "window_rule": rule, "degree": degree}
+    if method == "savgol":
+        from scipy.signal import savgol_filter
+
+        dt = float(np.median(np.diff(t)))
+        values = [savgol_filter(y, window, degree, deriv=k, delta=dt, mode="interp") for k in range(order + 1)]
+        return Estimate(values, info)
+    from scipy.interpolate import CubicSpline
+    from statsmodels.nonparametric.smoothers_lowess import lowess
+
+    smooth = lowess(y, t, frac=min(1.0, window / n), it=0, return_sorted=False)
+    spline = CubicSpline(t, smooth)
+    return Estimate([smooth] + [spline(t, nu=k) for k in range(1, order + 1)], info)

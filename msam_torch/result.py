@@ -10,7 +10,7 @@ import json
 import math
 import os
 import tempfile
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from .spec import Equation
@@ -50,7 +50,11 @@ class EquationResult:
     ``exponents``: per component, the final gamma or null; ``theta``: final theta per component;
     ``start``, ``final``: ``fitness``, ``sum_abs_error``, ``rho``;
     ``ranking``: every candidate with its adjustments and best round-robin fitness, best first;
-    ``diverged``: number of candidates marked diverged and skipped.
+    ``diverged``: number of candidates marked diverged and skipped;
+    ``theta_tuning``: theta re-estimated by least squares for the starting and for the adapted
+    model (``start``/``final``: ``equation``, ``theta``, measures and ``nominal_error``, the
+    relative distance of each nominal theta from the tuned one), ``used_for_start``, ``hold_fixed``;
+    ``validation``: measures on held-out data of ``start``, ``start_tuned``, ``final``, ``final_tuned``.
     """
 
     target: str
@@ -63,6 +67,8 @@ class EquationResult:
     final: dict
     ranking: list
     diverged: int
+    theta_tuning: dict = field(default_factory=dict)
+    validation: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return asdict(self)
