@@ -32,12 +32,16 @@ class StepOptions:
 
 @dataclass(frozen=True)
 class State:
-    """Exponents and theta of a batch of candidates: (T, C, Q), (T, C, Q), (T, C, P), (T, C)."""
+    """Exponents and theta of a batch of candidates: (T, C, Q), (T, C, Q), (T, C, P), (T, C).
+
+    ``initial`` (T, C, S): estimated initial states, used by simulation-based evaluation only.
+    """
 
     gamma: torch.Tensor
     theta: torch.Tensor
     theta_fixed: torch.Tensor
     diverged: torch.Tensor
+    initial: torch.Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -120,13 +124,25 @@ def step(selection: Selection, state: State, current: Evaluation, options: StepO
     phi_unscaled = structural_sensitivities(delta_yhat, unit)
     phi = phi_scaled if options.scaling == "dm" else phi_unscaled
     delta = lstsq(phi, eps, options.damping, options.rcond)
-    mu = _step_size(selection, state, current, phi, delta, eps, options)
-    gamma = state.gamma + mu.unsqueeze(-1) * delta
-    bad = ~torch.isfinite(gamma).all(-1) | (gamma.abs() > options.gamma_limit).any(-1) | ~torch.isfinite(current.fitness)
-    diverged = state.diverged | bad
-    gamma = torch.where(diverged.unsqueeze(-1), state.gamma, gamma)
+
+    def trial_fitness(mus):  # (L,) -> (L, T, C)
+        gamma = state.gamma + mus.view((-1,) + (1,) * state.gamma.dim()) * delta
+        return evaluate(selection, replace(state, gamma=gamma), options).fitness
+
+    mu = step_size(current.fitness, phi, delta, eps, options, trial_fitness)
+    gamma, diverged = advance(state.gamma, mu, delta, state.diverged, current.fitness, options)
     new_state = State(gamma, current.theta, current.theta_fixed, diverged)
     return StepResult(new_state, mu, delta, dm, condition_number(phi_scaled), condition_number(phi_unscaled))
+
+
+def advance(gamma: torch.Tensor, mu: torch.Tensor, delta: torch.Tensor, diverged: torch.Tensor,
+            fitness: torch.Tensor, options: StepOptions) -> tuple[torch.Tensor, torch.Tensor]:
+    """Eq. 18 ``gamma + mu delta``; candidates whose step is not finite or leaves ``gamma_limit``
+    (or whose fitness is not finite) are marked diverged and keep their exponents."""
+    new = gamma + mu.unsqueeze(-1) * delta
+    bad = ~torch.isfinite(new).all(-1) | (new.abs() > options.gamma_limit).any(-1) | ~torch.isfinite(fitness)
+    diverged = diverged | bad
+    return torch.where(diverged.unsqueeze(-1), gamma, new), diverged
 
 
 def _lstsq_many(a: torch.Tensor, b: torch.Tensor, rcond: float) -> torch.Tensor:
@@ -134,19 +150,23 @@ def _lstsq_many(a: torch.Tensor, b: torch.Tensor, rcond: float) -> torch.Tensor:
     return lstsq(a.unsqueeze(-3), b.mT, rcond=rcond).mT
 
 
-def _step_size(selection, state, current, phi, delta, eps, options) -> torch.Tensor:
+def step_size(fitness: torch.Tensor, phi: torch.Tensor, delta: torch.Tensor, eps: torch.Tensor,
+              options: StepOptions, trial_fitness) -> torch.Tensor:
+    """mu of every candidate (T, C): Eq. 20, 1, or a backtracking line search.
+
+    ``trial_fitness(mus)`` evaluates the candidates moved by each ``mu`` of ``mus`` (L,) and
+    returns their fitness (L, T, C); it is called only by the line search.
+    """
     if options.step_size == "eq20":  # Eq. 20
         return correlation(eps, (phi @ delta.unsqueeze(-1)).squeeze(-1))
     if options.step_size == "one":
-        return torch.ones_like(current.fitness)
-    return _line_search(selection, state, current, delta, options)
+        return torch.ones_like(fitness)
+    return _line_search(fitness, delta, trial_fitness)
 
 
-def _line_search(selection, state, current, delta, options) -> torch.Tensor:
+def _line_search(fitness, delta, trial_fitness) -> torch.Tensor:
     """Largest mu in LINE_SEARCH_STEPS that raises the fitness (0 if none), all at once."""
     mus = torch.tensor(LINE_SEARCH_STEPS, dtype=delta.dtype, device=delta.device)
-    gamma = state.gamma + mus.view((-1,) + (1,) * state.gamma.dim()) * delta  # (L, T, C, Q)
-    scores = evaluate(selection, replace(state, gamma=gamma), options).fitness  # (L, T, C)
-    better = scores > current.fitness
+    better = trial_fitness(mus) > fitness  # (L, T, C)
     first = torch.where(better.any(0), better.long().argmax(0), torch.full_like(better[0], len(mus), dtype=torch.long))
     return torch.cat([mus, mus.new_zeros(1)])[first]
