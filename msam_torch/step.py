@@ -55,6 +55,7 @@ class Evaluation:
     fitness: torch.Tensor  # (T, C)
     sum_abs_error: torch.Tensor
     rho: torch.Tensor
+    initial: torch.Tensor | None = None  # (T, C, S) initial states simulated from (simulation mode)
 
 
 @dataclass(frozen=True)

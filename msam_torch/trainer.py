@@ -129,7 +129,7 @@ class Trainer:
         selection = data.select(choices)
         evaluator = self.evaluator
         current = evaluator.evaluate(selection, state, self.options)
-        state = replace(state, theta=current.theta, theta_fixed=current.theta_fixed)
+        state = replace(state, theta=current.theta, theta_fixed=current.theta_fixed, initial=current.initial)
         if initial_best is None:
             best_fitness = torch.full(state.diverged.shape, -torch.inf, dtype=state.gamma.dtype, device=state.gamma.device)
         else:
@@ -142,7 +142,7 @@ class Trainer:
             improved = current.fitness > best_fitness
             best_fitness = torch.where(improved, current.fitness, best_fitness)
             best = _map_state(lambda new, old: torch.where(improved.view(improved.shape + (1,) * (new.dim() - 2)), new, old),
-                              replace(state, theta=current.theta, theta_fixed=current.theta_fixed), best)
+                              replace(state, theta=current.theta, theta_fixed=current.theta_fixed, initial=current.initial), best)
             self.trigger(event, iteration=iteration, offset=offset, choices=choices, result=result, evaluation=current)
         return best_fitness, best, state.diverged
 
