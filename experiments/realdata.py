@@ -105,12 +105,18 @@ def run(case: str) -> None:
             if "tau" in spec.inputs:
                 print(f"  relative force error {name}: " + ", ".join(
                     f"{label} {100 * force_error(equation, entries[-1], dataset.signals, 'tau'):.2f} %" for label, entries in models.items()))
-        if "tau" in spec.inputs:
-            theta = dict(zip([c.term.text for c in equation.components], eq.theta))
-            mass = 1.0 / theta["tau"]
-            print(f"  M = {mass:.2f} kg; other components as forces: " + ", ".join(
-                f"{t}{'' if a is None else f'*|{a}|^{g:.3f}'}: {-th * mass:.4g}"
-                for t, a, g, th in zip(theta, eq.adjustments, [g or 0.0 for g in eq.exponents], eq.theta) if t != "tau"))
+        if "tau" in spec.inputs:  # EMPS: the components as forces, M = 1 / theta_tau
+            texts = [c.term.text for c in equation.components]
+            mass = 1.0 / eq.theta[texts.index("tau")]
+            speed = float(train.signals["q_dot"].abs().median())
+            print(f"  M = {mass:.2f} kg; friction and offset as forces (at the median speed {speed:.4f} m/s):")
+            for text, a, g, th in zip(texts, eq.adjustments, eq.exponents, eq.theta):
+                if text == "tau":
+                    continue
+                law = text if a is None else f"{text}|{a[4:-1]}|^{g:.3f}"
+                at_median = -th * mass * (speed ** (1 + g) if text == "q_dot" and a == "abs(q_dot)" else
+                                          speed if text == "q_dot" else 1.0)
+                print(f"    {law}: coefficient {-th * mass:.4g}, force at median speed {at_median:.4g} N")
     if config.adaptation.simulation.output:
         runs = free_run_models(config, spec, models, path.parent)
         for record, rows in runs["free_run_rmse"].items():

@@ -310,14 +310,15 @@ class SimulationEvaluator:
         initial = _initial(selection, state)
         z = _packed(state, initial)
         jac = jacobians(data, selection.choice(state), state.gamma, z, options.dgamma)
-        eps = torch.nan_to_num(selection.y - current.yhat)
+        blown = ~_usable(current.yhat).all(-1, keepdim=True)  # (T, C, 1): its simulation left the float range
+        eps = torch.where(blown, torch.zeros_like(current.yhat), selection.y - current.yhat)
         phi_scaled = structural_sensitivities(jac.gamma, jac.dm)
         phi_unscaled = structural_sensitivities(jac.gamma, torch.full_like(jac.dm, options.dgamma))
         phi_gamma = phi_scaled if options.scaling == "dm" else phi_unscaled
         free = data.free.clone()
         if options.theta == "fixed":
             free[: q + p] = False
-        phi = torch.cat([phi_gamma, jac.z[..., free]], -1)
+        phi = torch.where(blown.unsqueeze(-1), 0.0, torch.cat([phi_gamma, jac.z[..., free]], -1))
         delta = lstsq(phi, eps, options.damping, options.rcond)
         delta_gamma, delta_z = delta[..., :q], torch.zeros_like(z)
         delta_z[..., free] = delta[..., q:]
@@ -353,6 +354,11 @@ class Jacobians:
     base: torch.Tensor  # (T, C, N) the output at the base point
 
 
+def _usable(values: torch.Tensor) -> torch.Tensor:
+    """Finite and far from overflow (squares and sums of it stay finite)."""
+    return torch.isfinite(values) & (values.abs() < 1e100)
+
+
 def _steps(z: torch.Tensor, relative: float) -> torch.Tensor:
     return relative * torch.where(z.abs() > 0, z.abs(), torch.ones_like(z))
 
@@ -380,7 +386,7 @@ def jacobians(data: SimulationData, choice, gamma, z, dgamma: float, structural:
     theta, theta_fixed, initial = _unpacked(zs, gamma.shape[-1], p)
     out = data.output(gammas, choice.unsqueeze(-2).expand(gammas.shape), theta, theta_fixed, initial)
     base = out[..., 0, :]
-    out = torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
+    out = torch.where(_usable(out), out, torch.zeros_like(out))
     k = 1 + q
     delta_gamma = (out[..., 1:k, :] - out[..., :1, :]).mT
     jz = torch.zeros(z.shape[:-1] + (base.shape[-1], zq), dtype=z.dtype, device=z.device)
@@ -418,15 +424,15 @@ def fit_parameters(data: SimulationData, choice, gamma, z, free: torch.Tensor, s
         return jac.base, jac.z[..., free]
 
     out, jz = linearise(z)
-    sse = ((y - out) ** 2).nan_to_num(nan=torch.inf).sum(-1)
+    sse = torch.where(_usable(out), (y - out) ** 2, torch.inf).sum(-1)
     for _ in range(steps):
-        eps = torch.nan_to_num(y - out)
+        eps = torch.where(_usable(out), y - out, torch.zeros_like(out))
         deltas = torch.stack([lstsq(jz, eps, damping) for damping in PREFIT_DAMPING], -2)  # (T, 1, L, Zf)
         trial = z.unsqueeze(-2).repeat_interleave(len(PREFIT_DAMPING), -2)
         trial[..., free] = trial[..., free] + deltas
         trial = trial.squeeze(1)  # (T, L, Z)
         out_t, jz_t = linearise(trial)
-        sse_t = ((y - out_t) ** 2).nan_to_num(nan=torch.inf).sum(-1)  # (T, L)
+        sse_t = torch.where(_usable(out_t), (y - out_t) ** 2, torch.inf).sum(-1)  # (T, L)
         best = sse_t.argmin(-1)
         rows = torch.arange(best.shape[0], device=best.device)
         better = (sse_t[rows, best] < sse[:, 0]).view(-1, 1)
@@ -549,9 +555,10 @@ class Prepared:
     validation: Record | None
 
 
-def prepare(config: Config, spec: ModelSpec, group: tuple[Equation, ...], parameters: dict, base_dir: Path,
-            dtype=torch.float64, device=None) -> Prepared:
-    """Records, the starting model's fit of theta and initial states, and the function scale."""
+def prepare(config: Config, spec: ModelSpec, group: tuple[Equation, ...], parameters: dict | list[dict],
+            base_dir: Path, dtype=torch.float64, device=None) -> Prepared:
+    """Records, the starting model's fit of theta and initial states, and the function scale;
+    a list of parameter sets gives one trial each."""
     model = build_model(spec, group)
     outputs = output_states(config, spec, model)
     train, validation = load_records(config, spec, model, outputs, base_dir, dtype)
@@ -559,18 +566,19 @@ def prepare(config: Config, spec: ModelSpec, group: tuple[Equation, ...], parame
                                                      r.guess.to(device), r.hold)
     train, validation = move(train), move(validation)
     a, sim = config.adaptation, config.adaptation.simulation
-    thetas = [spec.theta(eq, parameters).to(device=device, dtype=dtype) for eq in group]
-    theta = torch.stack([thetas[e][i] for e, i in model.adjustable]).unsqueeze(0)
-    theta_fixed = torch.stack([thetas[e][i] for e, i in model.fixed]).unsqueeze(0) if model.fixed \
-        else theta.new_zeros(1, 0)
-    q, p, s = theta.shape[-1], theta_fixed.shape[-1], len(model.states)
+    trials = parameters if isinstance(parameters, list) else [parameters]
+    thetas = [[spec.theta(eq, values).to(device=device, dtype=dtype) for eq in group] for values in trials]
+    theta = torch.stack([torch.stack([th[e][i] for e, i in model.adjustable]) for th in thetas])
+    theta_fixed = torch.stack([torch.stack([th[e][i] for e, i in model.fixed]) for th in thetas]) if model.fixed \
+        else theta.new_zeros(len(trials), 0)
+    t, q, p, s = theta.shape[0], theta.shape[-1], theta_fixed.shape[-1], len(model.states)
     free = torch.tensor([a.theta == "varpro"] * (q + p) + [sim.initial == "estimate"] * s, device=device)
-    data = SimulationData(model, train, tuple(model.states.index(o) for o in outputs), train.guess.unsqueeze(0),
-                          torch.ones(1, len(model.functions), dtype=dtype, device=device), free, sim.method,
+    data = SimulationData(model, train, tuple(model.states.index(o) for o in outputs), train.guess.expand(t, -1),
+                          torch.ones(t, len(model.functions), dtype=dtype, device=device), free, sim.method,
                           sim.substeps, sim.relative_step)
-    unadjusted = torch.full((1, 1, q), model.unadjusted, dtype=torch.long, device=device)
-    gamma = theta.new_zeros(1, 1, q)
-    z = torch.cat([theta, theta_fixed, train.guess.unsqueeze(0)], -1).unsqueeze(1)
+    unadjusted = torch.full((t, 1, q), model.unadjusted, dtype=torch.long, device=device)
+    gamma = theta.new_zeros(t, 1, q)
+    z = torch.cat([theta, theta_fixed, data.initial], -1).unsqueeze(1)
     z, _ = fit_parameters(data, unadjusted, gamma, z, free, sim.prefit_steps)
     theta, theta_fixed, initial = (v[:, 0] for v in _unpacked(z, q, p))
     data = replace(data, initial=initial)
