@@ -51,6 +51,10 @@ def adapt(config: Config | dict | str, overrides: list[str] = (),
     if not isinstance(config, Config):
         config = load_config(config, overrides)
     spec = ModelSpec.from_config(config.model)
+    if config.adaptation.evaluation == "simulation":
+        from .simulation_mode import adapt_simulation
+
+        return adapt_simulation(config, spec, nominal_parameters(config, spec), Path(base_dir), on_trainer)
     dtype = getattr(torch, config.adaptation.dtype)
     device = torch.device(config.adaptation.device)
     train, held_out = load_datasets(config.data, spec, base_dir, dtype=dtype, frame=data, validation_frame=validation)

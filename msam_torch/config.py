@@ -77,6 +77,23 @@ class DataConfig(_Section):
     resample: bool = Field(False, description="interpolate irregularly sampled data onto a uniform grid")
 
 
+class SimulationConfig(_Section):
+    """Simulation-based evaluation (paper section 2): candidates are simulated with torchdiffeq and
+    compared with the measured outputs (see :mod:`msam_torch.simulation_mode`)."""
+
+    output: list[str] = Field([], description="measured states compared with the simulation, e.g. [x2]")
+    coupling: Literal["joint", "separate"] = Field(
+        "joint", description="simulate all equations together, or adapt each with the other states read from the data")
+    method: Literal["rk4", "midpoint", "euler"] = Field("rk4", description="fixed-step torchdiffeq solver")
+    substeps: int = Field(1, ge=1, description="solver steps per sample interval")
+    input_hold: Literal["linear", "zoh"] = Field("linear", description="inputs between samples: linear or zero-order hold")
+    initial: Literal["estimate", "data"] = Field(
+        "estimate", description="initial states estimated by least squares, or taken from the data / initial_guess")
+    initial_guess: dict[str, Number] = Field({}, description="initial values of states the data do not give")
+    prefit_steps: int = Field(15, ge=0, description="Levenberg-Marquardt steps fitting theta and initial states first")
+    relative_step: float = Field(1e-6, gt=0, description="relative finite-difference step for theta and initial states")
+
+
 class AdaptationConfig(_Section):
     """Options of Algorithm 1 and the step (Eq. 16-20)."""
 
@@ -94,6 +111,9 @@ class AdaptationConfig(_Section):
     chunk_size: int = Field(4096, ge=1, description="candidates per batched chunk (bounds memory)")
     dtype: Literal["float64", "float32"] = "float64"
     device: str = "cpu"
+    evaluation: Literal["algebraic", "simulation"] = Field(
+        "algebraic", description="candidate outputs from estimated states (Eq. 6) or by simulation")
+    simulation: SimulationConfig = SimulationConfig()
 
 
 class Config(_Section):

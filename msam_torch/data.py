@@ -285,10 +285,22 @@ def check_variation(spec: ModelSpec, signals: Mapping[str, torch.Tensor], source
                                 "cannot be identified")
 
 
-def simulated_dataset(config: DataConfig, spec: ModelSpec, dtype) -> Dataset:
-    """A controlled case: simulate the true system, add noise to its measured signals, estimate."""
+def simulated_measurements(config: DataConfig) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """A controlled case: every simulated signal, and what its sensors record (with noise)."""
     system = get_system(config.system)
     simulated = {k: v.numpy() for k, v in simulate(system, dtype=torch.float64).items()}
+    rng = np.random.default_rng(config.seed)
+    measured = {}
+    for name in system.measured:
+        value = simulated[name]
+        noisy = name not in system.inputs and config.noise > 0
+        measured[name] = value + config.noise * value.std() * rng.standard_normal(value.size) if noisy else value
+    return simulated, measured
+
+
+def simulated_dataset(config: DataConfig, spec: ModelSpec, dtype) -> Dataset:
+    """A controlled case: simulate the true system, add noise to its measured signals, estimate."""
+    simulated, measured = simulated_measurements(config)
     missing = sorted(spec.signals - set(simulated))
     if missing:
         raise ConfigError("model", f"system {config.system!r} has no signals {missing} (it has {sorted(simulated)})")
@@ -296,12 +308,6 @@ def simulated_dataset(config: DataConfig, spec: ModelSpec, dtype) -> Dataset:
     if config.derivatives == "exact" and config.noise == 0:
         signals = {k: torch.as_tensor(v, dtype=dtype) for k, v in simulated.items()}
         return Dataset(signals, {**info, "samples": int(simulated["t"].size), "derivatives": "exact"})
-    rng = np.random.default_rng(config.seed)
-    measured = {}
-    for name in system.measured:
-        value = simulated[name]
-        noisy = name not in system.inputs and config.noise > 0
-        measured[name] = value + config.noise * value.std() * rng.standard_normal(value.size) if noisy else value
     if config.derivatives == "exact":
         raise ConfigError("data.derivatives", "with noise, derivatives must be estimated: choose savgol, spline, "
                           "loess or finite_difference")

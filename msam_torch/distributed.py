@@ -21,6 +21,7 @@ import torch.distributed as dist
 from .api import adapt, step_options
 from .config import Config, load_config
 from .errors import MSAMError
+from .step import State
 from .trainer import Trainer
 
 
@@ -28,21 +29,28 @@ class ShardedTrainer(Trainer):
     """A :class:`Trainer` whose round robin is split over the ranks of the default process group."""
 
     def round_robin(self, data, theta, theta_fixed, start, choices, offset: int = 0):
-        if not (dist.is_available() and dist.is_initialized()) or dist.get_world_size() == 1:
+        world = dist.get_world_size() if dist.is_available() and dist.is_initialized() else 1
+        if world == 1 or len(choices) < world:
             return super().round_robin(data, theta, theta_fixed, start, choices, offset)
-        rank, world = dist.get_rank(), dist.get_world_size()
+        rank = dist.get_rank()
         bounds = [len(choices) * r // world for r in range(world + 1)]
         width = max(b - a for a, b in zip(bounds, bounds[1:]))
         mine = choices[bounds[rank]: bounds[rank + 1]]
-        t, q = theta.shape[0], choices.shape[1]
-        local = torch.zeros(t, width, q + 2, dtype=data.y.dtype, device=data.y.device)  # fitness, diverged, gamma
-        if len(mine):
-            fitness, gamma, diverged = super().round_robin(data, theta, theta_fixed, start, mine, offset + bounds[rank])
-            local[:, : len(mine)] = torch.cat([fitness.unsqueeze(-1), diverged.to(fitness.dtype).unsqueeze(-1), gamma], -1)
+        fitness, state, diverged = super().round_robin(data, theta, theta_fixed, start, mine, offset + bounds[rank])
+        fields = [fitness.unsqueeze(-1), diverged.to(fitness.dtype).unsqueeze(-1), state.gamma, state.theta, state.theta_fixed]
+        if state.initial is not None:
+            fields.append(state.initial)
+        sizes = [f.shape[-1] for f in fields]
+        packed = torch.cat(fields, -1)
+        local = packed.new_zeros((packed.shape[0], width, packed.shape[-1]))
+        local[:, : len(mine)] = packed
         gathered = [torch.empty_like(local) for _ in range(world)]
         dist.all_gather(gathered, local)
         joined = torch.cat([g[:, : b - a] for g, a, b in zip(gathered, bounds, bounds[1:])], 1)
-        return joined[..., 0], joined[..., 2:], joined[..., 1] > 0
+        parts = torch.split(joined, sizes, -1)
+        flag = parts[1][..., 0] > 0
+        ranking = State(parts[2], parts[3], parts[4], flag, parts[5] if len(parts) > 5 else None)
+        return parts[0][..., 0], ranking, flag
 
 
 def sharded_trainer(config: Config) -> ShardedTrainer:

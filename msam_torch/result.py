@@ -23,6 +23,8 @@ def _number(value: float) -> str:
 def format_component(equation: Equation, index: int, function: int | None, gamma: float | None) -> str:
     """``x_dot|x_dot|^1.000`` (magnitude) or ``x1 sgn(x3)|x3|^1.000`` (signed); unadjusted: ``u``."""
     term = equation.components[index].term.text
+    if any(op in term for op in "+-"):  # a sum reads as one factor: (c + i + g)|y|^0.5
+        term = f"({term})"
     if function is None:
         return term
     f = equation.adjustments[function]

@@ -32,12 +32,16 @@ class StepOptions:
 
 @dataclass(frozen=True)
 class State:
-    """Exponents and theta of a batch of candidates: (T, C, Q), (T, C, Q), (T, C, P), (T, C)."""
+    """Exponents and theta of a batch of candidates: (T, C, Q), (T, C, Q), (T, C, P), (T, C).
+
+    ``initial`` (T, C, S): estimated initial states, used by simulation-based evaluation only.
+    """
 
     gamma: torch.Tensor
     theta: torch.Tensor
     theta_fixed: torch.Tensor
     diverged: torch.Tensor
+    initial: torch.Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -51,6 +55,7 @@ class Evaluation:
     fitness: torch.Tensor  # (T, C)
     sum_abs_error: torch.Tensor
     rho: torch.Tensor
+    initial: torch.Tensor | None = None  # (T, C, S) initial states simulated from (simulation mode)
 
 
 @dataclass(frozen=True)
@@ -152,11 +157,13 @@ def step(selection: Selection, state: State, current: Evaluation, options: StepO
     steps = dm if options.scaling == "dm" else unit  # Phi's column i is Y_i / steps_i
     x = solve_normal(gram, rhs, options.damping, options.rcond)
     delta = x * steps.clamp_min(torch.finfo(dm.dtype).tiny)
-    mu = _step_size(selection, state, current, fitted, x, delta, eps, options)
-    gamma = state.gamma + mu.unsqueeze(-1) * delta
-    bad = ~torch.isfinite(gamma).all(-1) | (gamma.abs() > options.gamma_limit).any(-1) | ~torch.isfinite(current.fitness)
-    diverged = state.diverged | bad
-    gamma = torch.where(diverged.unsqueeze(-1), state.gamma, gamma)
+
+    def trial_fitness(mus):  # (L,) -> (L, T, C)
+        gamma = state.gamma + mus.view((-1,) + (1,) * state.gamma.dim()) * delta
+        return evaluate(selection, replace(state, gamma=gamma), options).fitness
+
+    mu = step_size(current.fitness, fitted(x), eps, delta, options, trial_fitness)  # Phi dGamma = Y x
+    gamma, diverged = advance(state.gamma, mu, delta, state.diverged, current.fitness, options)
     new_state = State(gamma, current.theta, current.theta_fixed, diverged)
     cond_scaled = cond_unscaled = None
     if conditions:
@@ -171,19 +178,34 @@ def _rescale(gram: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
     return gram / (steps.unsqueeze(-1) * steps.unsqueeze(-2))
 
 
-def _step_size(selection, state, current, fitted, x, delta, eps, options) -> torch.Tensor:
-    if options.step_size == "eq20":  # Eq. 20: mu = corr(eps, Phi dGamma) with Phi dGamma = Y x
-        return correlation(eps, fitted(x))
+def advance(gamma: torch.Tensor, mu: torch.Tensor, delta: torch.Tensor, diverged: torch.Tensor,
+            fitness: torch.Tensor, options: StepOptions) -> tuple[torch.Tensor, torch.Tensor]:
+    """Eq. 18 ``gamma + mu delta``; candidates whose step is not finite or leaves ``gamma_limit``
+    (or whose fitness is not finite) are marked diverged and keep their exponents."""
+    new = gamma + mu.unsqueeze(-1) * delta
+    bad = ~torch.isfinite(new).all(-1) | (new.abs() > options.gamma_limit).any(-1) | ~torch.isfinite(fitness)
+    diverged = diverged | bad
+    return torch.where(diverged.unsqueeze(-1), gamma, new), diverged
+
+
+def step_size(fitness: torch.Tensor, predicted: torch.Tensor, eps: torch.Tensor, delta: torch.Tensor,
+              options: StepOptions, trial_fitness) -> torch.Tensor:
+    """mu of every candidate (T, C): Eq. 20, 1, or a backtracking line search.
+
+    ``predicted`` is the first-order change ``Phi dGamma`` (..., N) of Eq. 11; ``trial_fitness(mus)``
+    evaluates the candidates moved by each ``mu`` of ``mus`` (L,) and returns their fitness
+    (L, T, C); only the line search calls it.
+    """
+    if options.step_size == "eq20":  # Eq. 20: mu = corr(eps, Phi dGamma)
+        return correlation(eps, predicted)
     if options.step_size == "one":
-        return torch.ones_like(current.fitness)
-    return _line_search(selection, state, current, delta, options)
+        return torch.ones_like(fitness)
+    return _line_search(fitness, delta, trial_fitness)
 
 
-def _line_search(selection, state, current, delta, options) -> torch.Tensor:
+def _line_search(fitness, delta, trial_fitness) -> torch.Tensor:
     """Largest mu in LINE_SEARCH_STEPS that raises the fitness (0 if none), all at once."""
     mus = torch.tensor(LINE_SEARCH_STEPS, dtype=delta.dtype, device=delta.device)
-    gamma = state.gamma + mus.view((-1,) + (1,) * state.gamma.dim()) * delta  # (L, T, C, Q)
-    trial = evaluate(selection, replace(state, gamma=gamma), options).fitness  # (L, T, C)
-    better = trial > current.fitness
+    better = trial_fitness(mus) > fitness  # (L, T, C)
     first = torch.where(better.any(0), better.long().argmax(0), torch.full_like(better[0], len(mus), dtype=torch.long))
     return torch.cat([mus, mus.new_zeros(1)])[first]

@@ -4,7 +4,10 @@ The trainer owns the loop and fires named events; logging, progress bars and che
 callbacks (``trainer.add_callback(event, fn)``), each called as ``fn(trainer, **payload)``.
 Events: ``round_robin_step``, ``round_robin_end``, ``refinement_step``, ``refinement_end``.
 Candidates are processed in chunks of ``chunk_size`` so memory stays bounded; all trials of a
-batch (leading axis T) run together.
+batch (leading axis T) run together. How a candidate is evaluated and stepped is the trainer's
+``evaluator``: :class:`Algebraic` (Eq. 6, the default) or the simulation-based evaluator of
+:mod:`msam_torch.simulation_mode`; the best *state* of each candidate (exponents, theta and, in
+simulation mode, initial states) is what the stages keep and hand on.
 """
 from __future__ import annotations
 
@@ -40,19 +43,37 @@ class Fit:
     start: dict
     final: dict
     diverged: torch.Tensor
+    initial: torch.Tensor | None = None  # (T, S) estimated initial states (simulation mode)
 
 
 def measures(y: torch.Tensor, yhat: torch.Tensor) -> dict:
     return {"fitness": fitness(y, yhat), "sum_abs_error": sum_abs_error(y, yhat), "rho": correlation(yhat, y)}
 
 
+class Algebraic:
+    """Algebraic evaluation of candidates (paper section 2, Eq. 6-7): the default evaluator.
+
+    An evaluator provides ``evaluate(selection, state, options) -> Evaluation``, ``step(selection,
+    state, current, options) -> StepResult`` and ``starting_measures(data, theta, theta_fixed)``;
+    ``data.select(choices)`` gives the selection it works on.
+    """
+
+    evaluate = staticmethod(evaluate)
+    step = staticmethod(step)
+
+    @staticmethod
+    def starting_measures(data, theta, theta_fixed) -> dict:
+        return starting_measures(data, theta, theta_fixed)
+
+
 class Trainer:
     def __init__(self, options: StepOptions = StepOptions(), round_robin_steps: int = 15,
-                 refinement_steps: int = 70, chunk_size: int = 4096):
+                 refinement_steps: int = 70, chunk_size: int = 4096, evaluator=Algebraic):
         self.options = options
         self.round_robin_steps = round_robin_steps
         self.refinement_steps = refinement_steps
         self.chunk_size = chunk_size
+        self.evaluator = evaluator
         self.callbacks: dict[str, list[Callable]] = defaultdict(list)
 
     def add_callback(self, event: str, fn: Callable) -> None:
@@ -67,65 +88,79 @@ class Trainer:
         """Run Algorithm 1. ``theta`` (T, Q) and ``theta_fixed`` (T, P) are the nominal values;
         ``start`` (Q,) the starting exponents (default 0); ``choices`` (C, Q) the candidates
         (default: every combination of the adjustment functions)."""
-        t, _, q = data.components.shape
+        t, q = theta.shape
         if choices is None:
             choices = enumerate_choices(data.log_f.shape[-1], q, device=data.y.device)
         start = torch.zeros(q, dtype=data.y.dtype, device=data.y.device) if start is None else start
-        ranking_fitness, ranking_gamma, diverged = self.round_robin(data, theta, theta_fixed, start, choices)
+        ranking_fitness, ranking, diverged = self.round_robin(data, theta, theta_fixed, start, choices)
         winner = ranking_fitness.argmax(1)
         self.trigger("round_robin_end", choices=choices, ranking_fitness=ranking_fitness, winner=winner)
 
         trials = torch.arange(t, device=winner.device)
         winning_choice = choices[winner].unsqueeze(1)  # (T, 1, Q)
-        refined_fitness, refined_gamma, _ = self._adapt(
-            data, winning_choice, theta.unsqueeze(1), theta_fixed.unsqueeze(1), ranking_gamma[trials, winner].unsqueeze(1),
-            self.refinement_steps, "refinement_step", 0, initial_best=ranking_fitness[trials, winner].unsqueeze(1))
-        gamma = refined_gamma[:, 0]
-        selection = data.select(winning_choice)
-        final_state = State(gamma.unsqueeze(1), theta.unsqueeze(1), theta_fixed.unsqueeze(1),
-                            torch.zeros(t, 1, dtype=torch.bool, device=gamma.device))
-        final = evaluate(selection, final_state, self.options)
+        winning_state = _map_state(lambda x: x[trials, winner].unsqueeze(1), ranking)
+        _, refined, _ = self._adapt(data, winning_choice, winning_state, self.refinement_steps, "refinement_step", 0,
+                                    initial_best=ranking_fitness[trials, winner].unsqueeze(1))
+        final = self.evaluator.evaluate(data.select(winning_choice), replace(refined, diverged=torch.zeros_like(refined.diverged)),
+                                        self.options)
         fit = Fit(
-            choices=choices, ranking_fitness=ranking_fitness, ranking_gamma=ranking_gamma, winner=winner, gamma=gamma,
-            theta=final.theta[:, 0], theta_fixed=final.theta_fixed[:, 0],
-            start=starting_measures(data, theta, theta_fixed),
+            choices=choices, ranking_fitness=ranking_fitness, ranking_gamma=ranking.gamma, winner=winner,
+            gamma=refined.gamma[:, 0], theta=final.theta[:, 0], theta_fixed=final.theta_fixed[:, 0],
+            start=self.evaluator.starting_measures(data, theta, theta_fixed),
             final=measures(data.y, final.yhat[:, 0]), diverged=diverged,
+            initial=None if refined.initial is None else refined.initial[:, 0],
         )
         self.trigger("refinement_end", fit=fit)
         return fit
 
     def round_robin(self, data, theta, theta_fixed, start, choices, offset: int = 0):
-        """Stage 1 over ``choices`` in chunks: each candidate's best fitness (T, C), its gamma
-        (T, C, Q) and whether it diverged (T, C). ``offset`` numbers the candidates in events."""
-        best_fitness, best_gamma, diverged = [], [], []
+        """Stage 1 over ``choices`` in chunks: each candidate's best fitness (T, C), its best
+        :class:`State` (T, C, ...) and whether it diverged (T, C). ``offset`` numbers the
+        candidates in events."""
+        t, q = theta.shape[0], choices.shape[1]
+        best, diverged = [], []
         for first in range(0, choices.shape[0], self.chunk_size):
             chunk = choices[first: first + self.chunk_size]
-            result = self._adapt(data, chunk, theta.unsqueeze(1), theta_fixed.unsqueeze(1), start,
-                                 self.round_robin_steps, "round_robin_step", offset + first)
-            best_fitness.append(result[0]), best_gamma.append(result[1]), diverged.append(result[2])
-        return torch.cat(best_fitness, 1), torch.cat(best_gamma, 1), torch.cat(diverged, 1)
+            shape = (t, chunk.shape[0])
+            state = State(start.expand(shape + start.shape[-1:]).clone(), theta.unsqueeze(1).expand(shape + (q,)),
+                          theta_fixed.unsqueeze(1).expand(shape + theta_fixed.shape[-1:]),
+                          torch.zeros(shape, dtype=torch.bool, device=theta.device))
+            result = self._adapt(data, chunk, state, self.round_robin_steps, "round_robin_step", offset + first)
+            best.append(result[:2]), diverged.append(result[2])
+        ranking = _map_state(lambda *xs: torch.cat(xs, 1), *[b[1] for b in best])
+        return torch.cat([b[0] for b in best], 1), ranking, torch.cat(diverged, 1)
 
-    def _adapt(self, data, choices, theta, theta_fixed, start, steps, event, offset, initial_best=None):
-        """Iterate a batch of candidates; return each one's best fitness, its gamma, diverged."""
+    def _adapt(self, data, choices, state, steps, event, offset, initial_best=None):
+        """Iterate a batch of candidates from ``state``; return each one's best fitness, its
+        state, and which diverged."""
         selection = data.select(choices)
-        shape = selection.log_f.shape[:2]
-        gamma = start.expand(shape + start.shape[-1:]).clone() if start.dim() < 3 else start.clone()
-        state = State(gamma, theta.expand(shape + theta.shape[-1:]), theta_fixed.expand(shape + theta_fixed.shape[-1:]),
-                      torch.zeros(shape, dtype=torch.bool, device=gamma.device))
-        current = evaluate(selection, state, self.options)
+        evaluator = self.evaluator
+        current = evaluator.evaluate(selection, state, self.options)
+        state = replace(state, theta=current.theta, theta_fixed=current.theta_fixed, initial=current.initial)
         if initial_best is None:
-            best_fitness, best_gamma = torch.full(shape, -torch.inf, dtype=gamma.dtype, device=gamma.device), gamma
+            best_fitness = torch.full(state.diverged.shape, -torch.inf, dtype=state.gamma.dtype, device=state.gamma.device)
         else:
-            best_fitness, best_gamma = initial_best, gamma
+            best_fitness = initial_best
+        best = state
         for iteration in range(steps):
-            result = step(selection, state, current, self.options, conditions=bool(self.callbacks[event]))
+            result = evaluator.step(selection, state, current, self.options, conditions=bool(self.callbacks[event]))
             state = result.state
-            current = evaluate(selection, state, self.options)
+            current = evaluator.evaluate(selection, state, self.options)
             improved = current.fitness > best_fitness
             best_fitness = torch.where(improved, current.fitness, best_fitness)
-            best_gamma = torch.where(improved.unsqueeze(-1), state.gamma, best_gamma)
+            best = _map_state(lambda new, old: torch.where(improved.view(improved.shape + (1,) * (new.dim() - 2)), new, old),
+                              replace(state, theta=current.theta, theta_fixed=current.theta_fixed, initial=current.initial), best)
             self.trigger(event, iteration=iteration, offset=offset, choices=choices, result=result, evaluation=current)
-        return best_fitness, best_gamma, state.diverged
+        return best_fitness, best, state.diverged
+
+
+def _map_state(fn, *states: State) -> State:
+    """Apply ``fn`` field by field to states of the same layout (``initial`` may be None)."""
+    fields = {}
+    for name in ("gamma", "theta", "theta_fixed", "diverged", "initial"):
+        values = [getattr(s, name) for s in states]
+        fields[name] = None if values[0] is None else fn(*values)
+    return State(**fields)
 
 
 def starting_measures(data: EquationData, theta: torch.Tensor, theta_fixed: torch.Tensor) -> dict:

@@ -1,0 +1,130 @@
+"""MSAM on the real benchmark records carried in ``msam_torch/datasets``: what ``msam run`` finds.
+
+    PYTHONPATH=. python experiments/realdata.py [silverbox emps cascaded_tanks us_is]
+
+For each configs/<case>.yaml: the adapted equation, its exponents, the theta-retuned starting model
+against the adapted one (one-step error of the modelled derivative on training and validation, the
+relative force error for EMPS, free-run RMSE where the record allows it) and the run time.
+The theta-retuned starting model is the unadjusted model with every theta fitted by linear least
+squares on the training record (the same estimated signals the adaptation saw).
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from msam_torch.api import adapt
+from msam_torch.candidates import EquationData
+from msam_torch.config import load_config
+from msam_torch.data import load_datasets
+from msam_torch.result import EquationResult
+from msam_torch.simulation_mode import free_run_models
+from msam_torch.spec import ModelSpec
+from msam_torch.step import lstsq
+
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+
+
+def retuned_start(equation, data: EquationData) -> EquationResult:
+    """The unadjusted model with theta by linear least squares (adjustable and fixed components)."""
+    design = torch.cat([data.components, data.fixed_components], -1)[0]
+    solution = lstsq(design, data.y[0])
+    order = list(equation.adjustable) + list(equation.fixed)
+    theta = [0.0] * len(equation.components)
+    for k, i in enumerate(order):
+        theta[i] = float(solution[k])
+    none = [None] * len(equation.components)
+    return EquationResult(equation.target, "", "", none, none, theta, {}, {}, [], 0)
+
+
+def one_step(equation, entry, signals: dict) -> torch.Tensor:
+    """The modelled derivative of an entry (adjustments, exponents, theta in data units): (N,)."""
+    functions = {f.text: f for f in equation.adjustments}
+    total = torch.zeros_like(signals[equation.target])
+    for i, component in enumerate(equation.components):
+        term = torch.as_tensor(component.term(signals), dtype=total.dtype).expand_as(total)
+        if entry.adjustments[i] is not None:
+            function = functions[entry.adjustments[i]]
+            f = function(signals)
+            magnitude = f.abs().clamp_min(1e-300) ** entry.exponents[i]
+            term = term * (magnitude if function.is_magnitude else torch.sign(f) * magnitude)
+        total = total + entry.theta[i] * term
+    return total
+
+
+def errors(y, yhat) -> dict:
+    eps = y - yhat
+    return {"sum_abs": float(eps.abs().sum()), "rmse": float(eps.pow(2).mean().sqrt()),
+            "rel": float(eps.norm() / y.norm())}
+
+
+def force_error(equation, entry, signals: dict, input_name: str) -> float:
+    """Relative error of the input predicted by solving the equation for its input term (EMPS:
+    the motor force of the inverse model, as in the data README)."""
+    k = [c.term.text for c in equation.components].index(input_name)
+    tau = signals[input_name]
+    tau_hat = tau + (signals[equation.target] - one_step(equation, entry, signals)) / entry.theta[k]
+    return float((tau - tau_hat).norm() / tau.norm())
+
+
+def run(case: str) -> None:
+    path = CONFIGS / f"{case}.yaml"
+    config = load_config(path)
+    spec = ModelSpec.from_config(config.model)
+    begin = time.perf_counter()
+    result = adapt(path)
+    elapsed = time.perf_counter() - begin
+    print(f"== {case}  ({elapsed:.1f} s, {config.adaptation.evaluation} evaluation)")
+    for eq in result.equations:
+        print(f"  start:   {eq.start_equation}")
+        print(f"  adapted: {eq.equation}")
+        print(f"  winner {eq.ranking[0]['adjustments']}, runner-up {eq.ranking[1]['adjustments']} "
+              f"(fitness {eq.ranking[0]['fitness']:.4g} vs {eq.ranking[1]['fitness']:.4g})")
+    if config.adaptation.evaluation == "simulation":
+        for group in result.data["simulation"]:
+            print(f"  initial states {group['initial']}")
+            for record, rows in group["free_run_rmse"].items():
+                print(f"  free-run RMSE {record}: " + ", ".join(f"{k} {v[0]:.4f}" for k, v in rows.items()))
+        return
+    train, validation = load_datasets(config.data, spec, path.parent)
+    models = {"retuned start": [], "adapted": []}
+    for equation, eq in zip(spec.equations, result.equations):
+        data = EquationData.build(equation, train.signals)
+        models["retuned start"].append(retuned_start(equation, data))
+        models["adapted"].append(eq)
+        for name, dataset in (("train", train), ("validation", validation)):
+            if dataset is None:
+                continue
+            y = dataset.signals[equation.target]
+            row = {label: errors(y, one_step(equation, entries[-1], dataset.signals)) for label, entries in models.items()}
+            print(f"  one-step {equation.target} {name}: " + ", ".join(
+                f"{label} sum|eps| {v['sum_abs']:.4g} rmse {v['rmse']:.4g} rel {100 * v['rel']:.2f} %" for label, v in row.items()))
+            if "tau" in spec.inputs:
+                print(f"  relative force error {name}: " + ", ".join(
+                    f"{label} {100 * force_error(equation, entries[-1], dataset.signals, 'tau'):.2f} %" for label, entries in models.items()))
+        if "tau" in spec.inputs:  # EMPS: the components as forces, M = 1 / theta_tau
+            texts = [c.term.text for c in equation.components]
+            mass = 1.0 / eq.theta[texts.index("tau")]
+            speed = float(train.signals["q_dot"].abs().median())
+            print(f"  M = {mass:.2f} kg; friction and offset as forces (at the median speed {speed:.4f} m/s):")
+            for text, a, g, th in zip(texts, eq.adjustments, eq.exponents, eq.theta):
+                if text == "tau":
+                    continue
+                law = text if a is None else f"{text}|{a[4:-1]}|^{g:.3f}"
+                at_median = -th * mass * (speed ** (1 + g) if text == "q_dot" and a == "abs(q_dot)" else
+                                          speed if text == "q_dot" else 1.0)
+                print(f"    {law}: coefficient {-th * mass:.4g}, force at median speed {at_median:.4g} N")
+    if config.adaptation.simulation.output:
+        runs = free_run_models(config, spec, models, path.parent)
+        for record, rows in runs["free_run_rmse"].items():
+            print(f"  free-run RMSE {record} ({', '.join(runs['outputs'])}): " + ", ".join(
+                f"{k} {v[0]:.5g}" for k, v in rows.items()))
+
+
+if __name__ == "__main__":
+    torch.set_num_threads(2)
+    for case in sys.argv[1:] or ["silverbox", "emps", "cascaded_tanks", "us_is"]:
+        run(case)
