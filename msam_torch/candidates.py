@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Callable, Mapping, Optional
 
 import torch
 from torch import nn
@@ -35,6 +35,9 @@ class EquationData:
 
     ``log_f`` and ``sign_f`` hold ``log max(|f|/scale, FLOOR)`` and the sign factor of every
     adjustment function; ``scale`` is 1 or the function's RMS (``normalize='rms'``).
+    ``project`` (optional) is a linear map along the sample axis applied to the adjusted columns
+    (..., N, Q) -> (..., M, Q), e.g. integration against test functions (weak form); ``y`` and
+    ``fixed_components`` are then given in the projected space (M rows).
     """
 
     y: torch.Tensor  # (T, N) target derivative
@@ -43,6 +46,7 @@ class EquationData:
     log_f: torch.Tensor  # (T, N, F)
     sign_f: torch.Tensor  # (T, N, F)
     scale: torch.Tensor  # (T, F)
+    project: Optional[Callable[[torch.Tensor], torch.Tensor]] = None
 
     @classmethod
     def build(cls, equation: Equation, signals: Mapping[str, torch.Tensor], normalize: str = "none") -> "EquationData":
@@ -83,7 +87,8 @@ class EquationData:
         c, q = index.shape[-2:]
         gather = lambda values: values.unsqueeze(1).expand(t, c, n, -1).gather(-1, index.unsqueeze(2).expand(t, c, n, q))
         signed = self.components.unsqueeze(1) * gather(self.sign_f)
-        return Selection(self.y.unsqueeze(1), signed, gather(self.log_f), self.fixed_components.unsqueeze(1))
+        return Selection(self.y.unsqueeze(1), signed, gather(self.log_f), self.fixed_components.unsqueeze(1),
+                         self.project)
 
 
 @dataclass(frozen=True)
@@ -94,6 +99,7 @@ class Selection:
     signed_components: torch.Tensor  # (T, C, N, Q): M_i * sign factor of its f
     log_f: torch.Tensor  # (T, C, N, Q)
     fixed_components: torch.Tensor  # (T, 1, N, P)
+    project: Optional[Callable[[torch.Tensor], torch.Tensor]] = None  # see EquationData
 
 
 def power(log_f: torch.Tensor, gamma: torch.Tensor) -> torch.Tensor:
@@ -103,7 +109,8 @@ def power(log_f: torch.Tensor, gamma: torch.Tensor) -> torch.Tensor:
 
 def columns(selection: Selection, gamma: torch.Tensor) -> torch.Tensor:
     """Adjusted components ``M_i f_i^gamma_i`` (Eq. 9) for gamma of shape (T, C, Q)."""
-    return selection.signed_components * power(selection.log_f, gamma.unsqueeze(-2))
+    cols = selection.signed_components * power(selection.log_f, gamma.unsqueeze(-2))
+    return cols if selection.project is None else selection.project(cols)
 
 
 def predict(selection: Selection, cols: torch.Tensor, theta: torch.Tensor, theta_fixed: torch.Tensor) -> torch.Tensor:
