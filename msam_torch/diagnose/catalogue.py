@@ -5,7 +5,10 @@ An effect term is ``theta * M * |s|^gamma`` (``abs(s)`` adjustment) added to a s
 the spec's naming alone: in an equation for the ``k``-th derivative of ``x``, ``x`` differentiated
 ``k - 1`` times is the *rate* (velocity in a force balance, the level in a balance of flows when
 ``k = 1``) and ``k - 2`` times the *displacement*. An entry matches when roles agree and the
-exponent is within its interval; anything else is "power law, no catalogued effect".
+exponent is within its interval; anything else is "power law, no catalogued effect". A fitted
+exponent just outside an interval (noise biases exponents, design.md section 3) still takes the
+name when the exponent *snapped* to the interval keeps most of the improvement (see
+:func:`msam_torch.diagnose.core`).
 
 | effect | term | exponent gamma |
 |---|---|---|
@@ -65,6 +68,17 @@ def role(equation: Equation, text: str) -> str | None:
     if order >= 2 and signal_order == order - 2:
         return "displacement"
     return None
+
+
+def entries_for(equation: Equation, component: int, function: int) -> list[Entry]:
+    """Catalogue entries whose roles fit ``M_component * f_function^gamma`` (any exponent)."""
+    f = equation.adjustments[function]
+    if not f.is_magnitude:
+        return []
+    term_role = role(equation, equation.components[component].term.text)
+    function_role = role(equation, f.inner_text)
+    order = split_derivative(equation.target)[1]
+    return [e for e in CATALOGUE if e.term == term_role and e.function == function_role and order in e.orders]
 
 
 def name_effect(equation: Equation, component: int, function: int, gamma: float, theta: float,

@@ -16,14 +16,14 @@ from pathlib import Path
 import torch
 
 from ..api import nominal_parameters
-from ..candidates import FLOOR, EquationData
+from ..candidates import FLOOR, EquationData, columns
 from ..config import Config, load_config
 from ..data import Dataset, load_datasets, measured_dataset, read_frame
 from ..errors import DataError
 from ..result import format_component, format_equation
 from ..simulate import EquationModel, simulate
 from ..spec import Equation, ModelSpec, split_derivative
-from ..step import StepOptions
+from ..step import StepOptions, solve_theta
 from . import catalogue, confidence, localise, measures
 from .hypotheses import Fitted, Hypothesis, encode, enumerate_hypotheses, extended_equation, fit, predict_rows
 from .report import EquationGap, GapReport
@@ -47,6 +47,7 @@ class DiagnoseOptions:
     relative: float = 0.05  # null rule: held-out RMSE at least 5 % below the re-fitted starting model
     absolute: float = 0.002  # ... and by 0.2 % of the held-out target's RMS
     min_win_frequency: float = 0.5  # bootstrap share the named effect must win
+    snap_keep: float = 0.9  # a catalogue exponent must keep this share of the free exponent's improvement
     max_structure_left: float = 0.25  # residual structure the effect may leave (share of the gap's)
     free_run: bool = True  # simulate the models (torchdiffeq)
     solver: str = "rk4"  # torchdiffeq method of the free-run simulations
@@ -67,7 +68,6 @@ def diagnose(config: Config | dict | str | Path, data: Dataset | str | Path | No
     the training record are held out). Paths in the config are relative to ``base_dir``
     (default: the config file's folder).
     """
-    started = time.perf_counter()
     if base_dir is None:
         base_dir = Path(config).parent if isinstance(config, (str, Path)) else Path(".")
     if not isinstance(config, Config):
@@ -75,6 +75,7 @@ def diagnose(config: Config | dict | str | Path, data: Dataset | str | Path | No
     spec = ModelSpec.from_config(config.model)
     dtype = getattr(torch, config.adaptation.dtype)
     train, held_out = _datasets(config, spec, data, validate, base_dir, dtype)
+    started = time.perf_counter()  # the diagnosis itself, data loading excluded
     parameters = nominal_parameters(config, spec)
     generator = torch.Generator().manual_seed(options.seed)
     gaps, models, series = [], [], {}
@@ -218,7 +219,10 @@ def _diagnose_equation(spec, equation, train, held_out, parameters, options, gen
         boot_rmse[:, keep] = heldout_rmse(part, choices[keep])
 
     nominal = spec.theta(equation, parameters).to(t)
-    names = [_name(equation, h, original, c, nominal) for c, h in enumerate(hypotheses)]
+    snap = lambda fit_data, fitted, r: _snapped_names(equation, hypotheses, fit_data, val_data, val_rows, choices,
+                                                      fitted, r, nominal, options.snap_keep)
+    names, snapped = snap(data, original, rmse.unsqueeze(0))
+    names, snapped = names[0], snapped[0]
     is_effect = torch.tensor([h.kind != "retuned" for h in hypotheses])
     candidates_rmse = torch.where(is_effect, rmse, torch.full_like(rmse, torch.inf))
     best = int(candidates_rmse.argmin())
@@ -228,11 +232,12 @@ def _diagnose_equation(spec, equation, train, held_out, parameters, options, gen
     # confidence: bootstrap outcomes and the margin to the best hypothesis with another name
     outcomes = []
     if boot_rmse is not None:
+        boot_names, _ = snap(boot_data, boot, boot_rmse)
         boot_candidates = torch.where(is_effect, boot_rmse, torch.full_like(boot_rmse, torch.inf))
         for k in range(boot_rmse.shape[0]):
             b = int(boot_candidates[k].argmin())
             ok = bool(confidence.significant(boot_rmse[k, b], boot_rmse[k, 0], target_rms, options.relative, options.absolute))
-            outcomes.append(_name(equation, hypotheses[b], boot, b, nominal, trial=k) if ok else NO_GAP)
+            outcomes.append(boot_names[k][b] if ok else NO_GAP)
     frequency = confidence.win_frequency(outcomes, outcome) if outcomes else float("nan")
     order_c = [int(c) for c in torch.argsort(rmse) if torch.isfinite(rmse[c])]
     runner = next((c for c in order_c if names[c] != names[best] and c != 0), None) if is_significant else best
@@ -252,7 +257,7 @@ def _diagnose_equation(spec, equation, train, held_out, parameters, options, gen
     winner = best if is_significant else 0
 
     # where: robust residual of the starting structure on the training rows
-    where = _where(extended, equation, signals, tests, data, choices, fit_rows)
+    where = _where(equation, signals)
     components = []
     for i in equation.adjustable:
         touching = [c for c, h in enumerate(hypotheses) if h.component == i]
@@ -299,14 +304,46 @@ def _scatter(part: Fitted, keep: torch.Tensor, c: int) -> Fitted:
                   full(part.fitness, -torch.inf), full(part.invalid, True))
 
 
-def _name(equation, h: Hypothesis, fitted, c, nominal, trial=0) -> str:
-    if h.kind == "retuned":
-        return NO_GAP
+def _slot(equation: Equation, h: Hypothesis) -> int:
     q = len(equation.adjustable)
-    slot = equation.adjustable.index(h.component) + (q if h.kind == "additive" else 0)
-    gamma = float(fitted.gamma[trial, c, slot])
-    theta = float(fitted.theta[trial, c, slot])
-    return catalogue.name_effect(equation, h.component, h.function, gamma, theta, float(nominal[h.component]))
+    return equation.adjustable.index(h.component) + (q if h.kind == "additive" else 0)
+
+
+def _snapped_names(equation, hypotheses, fit_data, val_data, val_rows, choices, fitted, rmse, nominal, keep):
+    """Catalogue names of every trial and hypothesis (T, C) and the exponents they name.
+
+    Each effect exponent is moved to the nearest catalogued value for its signal roles, theta is
+    re-solved (variable projection), and the name is given when the snapped model keeps ``keep``
+    of the free exponent's held-out improvement over the re-fitted start; else 'power law, no
+    catalogued effect'."""
+    gamma = fitted.gamma.clone()
+    for c, h in enumerate(hypotheses):
+        entries = [] if h.kind == "retuned" else catalogue.entries_for(equation, h.component, h.function)
+        if entries:
+            g = gamma[:, c, _slot(equation, h)]
+            options = torch.stack([g.clamp(e.low, e.high) for e in entries], -1)
+            nearest = (options - g.unsqueeze(-1)).abs().argmin(-1, keepdim=True)
+            gamma[:, c, _slot(equation, h)] = options.gather(-1, nearest).squeeze(-1)
+    selection = fit_data.select(choices)
+    theta, theta_fixed = solve_theta(selection, columns(selection, gamma))
+    moved = Fitted(gamma, theta, theta_fixed, fitted.fitness, fitted.invalid)
+    yhat = predict_rows(val_data, choices, moved)[..., val_rows]
+    y = val_data.y[0][val_rows]
+    snapped_rmse = torch.sqrt(((yhat - y) ** 2).mean(-1))
+    kept = (rmse[:, :1] - snapped_rmse) >= keep * (rmse[:, :1] - rmse)
+    names = []
+    for k in range(gamma.shape[0]):
+        row = []
+        for c, h in enumerate(hypotheses):
+            if h.kind == "retuned":
+                row.append(NO_GAP)
+                continue
+            s = _slot(equation, h)
+            named = catalogue.name_effect(equation, h.component, h.function, float(gamma[k, c, s]),
+                                          float(theta[k, c, s]), float(nominal[h.component]))
+            row.append(named if bool(kept[k, c]) else catalogue.NOT_CATALOGUED)
+        names.append(row)
+    return names, gamma[..., :]
 
 
 def _exponent(h: Hypothesis, equation: Equation, gamma: torch.Tensor) -> float | None:
@@ -385,24 +422,18 @@ def _structure_left(extended, equation, signals, tests, val_signals, val_tests, 
     return explained[1] / explained[0] if explained[0] > 0 else 0.0
 
 
-def _where(extended, equation, signals, tests, data, choices, fit_rows) -> dict:
-    design = torch.cat([tests.integrate(EquationData.build(extended, signals, "none").components[0][:, :len(equation.adjustable)]),
-                        data.fixed_components[0]], -1)
-    y = data.y[0]
-    rows = fit_rows
-    residual = localise.robust_residual(design[rows], y[rows])
-    flagged = localise.flag(residual)
-    centres = tests.centres(signals["t"].shape[0])[rows]
-    t_rows = signals["t"][centres]
-    names, features = _features(equation, signals, tests)
-    values = {n: features[rows, j] for j, n in enumerate(names)}
-    regions = localise.state_regions(values, flagged) if 0 < int(flagged.sum()) < flagged.numel() else []
-    windows = localise.time_windows(t_rows, flagged, residual)
-    summary = {"flagged_fraction": float(flagged.double().mean()),
-               "time_windows": windows,
-               "regions": [{"signal": r.signal, "rule": r.rule, "iou": r.iou, "kind": r.kind, "value": r.value}
-                           for r in regions]}
-    return {"summary": summary, "series": {"t": t_rows, "residual": residual, "flagged": flagged, "values": values}}
+def _where(equation, signals) -> dict:
+    """Two-regime search on the one-step (pointwise) rows of the training record (:mod:`.localise`);
+    pointwise, because a weak-form row mixes the states over its test function's window."""
+    data = EquationData.build(equation, signals, "none")
+    design = torch.cat([data.components[0], data.fixed_components[0]], -1)
+    names = sorted(n for n in equation.signals - {equation.target, "t"} if n in signals)
+    values = {n: signals[n] for n in names}
+    regions, flagged, residual, explained = localise.localise(design, data.y[0], values)
+    summary = {"flagged_fraction": float(flagged.double().mean()), "split_explained": explained,
+               "time_windows": localise.time_windows(signals["t"], flagged, residual),
+               "regions": [asdict(r) for r in regions]}
+    return {"summary": summary, "series": {"t": signals["t"], "residual": residual, "flagged": flagged, "values": values}}
 
 
 def _measures(spec, models, train, held_out, series, options) -> dict:

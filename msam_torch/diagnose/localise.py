@@ -1,56 +1,103 @@
-"""Where the gap lies: time windows and state-space regions where the starting model's residual
-concentrates.
+"""Where the gap lies: the state-space region and time windows where the starting model fails.
 
-The starting structure is fitted robustly (iteratively reweighted least squares, Tukey's
-bisquare) on the weak-form rows, so theta comes from the part of the record the starting model
-describes and the residual stands out where an unmodelled effect acts. Rows whose robust residual
-exceeds ``threshold`` robust standard deviations are flagged; flagged rows are merged into time
-windows, and simple rules on one signal (``s > a``, ``s < a``, ``|s| > a``, ``|s| < a``) are
-scored by their intersection-over-union with the flagged rows.
+1. Split: for every one-signal rule ``R`` (``s > a``, ``s < a``, ``|s| > a``, ``|s| < a``, ``a`` on
+   a grid of quantiles) the starting structure (theta free) is fitted separately inside and outside
+   ``R`` on the one-step rows (estimated derivative), all rules as one batch; the rule whose two-regime fit removes the
+   most squared residual is where the model changes behaviour. Its side with the smaller residual
+   is where the starting model holds; concentration steps (as in least trimmed squares) fit the
+   starting structure to the better-fitting half of that side.
+2. Flag: the starting structure fitted on that side alone predicts every row; rows whose residual
+   exceeds ``THRESHOLD`` robust standard deviations of that side's residual are flagged, and the fit
+   is repeated on the unflagged rows until the flagged set settles (when the
+   split removes at least ``MIN_EXPLAINED`` of the single-fit residual) and merged into time
+   windows; the one-signal rule that best matches the flagged rows (intersection over union)
+   describes the region.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
 from ..step import lstsq
 
-BISQUARE = 4.685
+MIN_EXPLAINED = 0.2
 THRESHOLD = 3.0
+ITERATIONS = 10
+MIN_SHARE = 0.1  # each regime holds at least this share of the rows
 
 
 @dataclass(frozen=True)
 class Region:
     signal: str
     rule: str  # e.g. '|x| > 0.8'
-    iou: float  # agreement with the flagged rows
     kind: str  # 'gt', 'lt', 'abs_gt', 'abs_lt'
     value: float
+    share: float  # fraction of the rows inside
+    explained: float  # intersection over union with the flagged rows
 
     def mask(self, values: torch.Tensor) -> torch.Tensor:
         v = values.abs() if self.kind.startswith("abs") else values
         return v > self.value if self.kind.endswith("gt") else v < self.value
 
 
-def robust_residual(design: torch.Tensor, y: torch.Tensor, iterations: int = 20) -> torch.Tensor:
-    """Residual of a bisquare IRLS fit of ``y ~ design`` (M, K), (M,) -> (M,)."""
-    weights = torch.ones_like(y)
-    residual = y - design @ lstsq(design, y)
-    for _ in range(iterations):
-        scale = 1.4826 * (residual - residual.median()).abs().median()
-        if not scale > 0:
+def _sse(design: torch.Tensor, y: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """Weighted least-squares residual sum of squares for every row of ``weights`` (R, M) -> (R,)."""
+    root = weights.sqrt()
+    x = lstsq(design * root.unsqueeze(-1), y * root)
+    return (weights * (y - (design @ x.unsqueeze(-1)).squeeze(-1)) ** 2).sum(-1)
+
+
+def _candidates(values: dict[str, torch.Tensor], quantiles: int, dtype) -> list[Region]:
+    levels = torch.linspace(0.025, 0.975, quantiles, dtype=dtype)
+    rules = []
+    for name, v in values.items():
+        for kind in ("gt", "lt", "abs_gt", "abs_lt"):
+            base = v.abs() if kind.startswith("abs") else v
+            for a in torch.quantile(base, levels).tolist():
+                region = Region(name, _rule(name, kind, a), kind, a, 0.0, 0.0)
+                rules.append(replace(region, share=float(region.mask(v).double().mean())))
+    return rules
+
+
+def localise(design: torch.Tensor, y: torch.Tensor, values: dict[str, torch.Tensor], quantiles: int = 39):
+    """``(regions, flagged, residual, explained)``: the best rule per signal by its intersection
+    over union with the flagged rows (M,), the residual of the fit where the model holds, and the
+    squared residual the best split removes."""
+    tiny = torch.finfo(y.dtype).tiny
+    total = _sse(design, y, torch.ones_like(y).unsqueeze(0))[0].clamp_min(tiny)
+    rules = [r for r in _candidates(values, quantiles, y.dtype) if MIN_SHARE <= r.share <= 1 - MIN_SHARE]
+    if not rules:
+        return [], torch.zeros_like(y, dtype=torch.bool), y - design @ lstsq(design, y), 0.0
+    inside = torch.stack([r.mask(values[r.signal]) for r in rules]).to(y.dtype)
+    sse_in, sse_out = _sse(design, y, inside), _sse(design, y, 1 - inside)
+    explained = 1 - (sse_in + sse_out) / total
+    best = int(explained.argmax())
+    rows_in = inside[best].sum().clamp_min(1)
+    side = inside[best] if sse_in[best] / rows_in <= sse_out[best] / (len(y) - rows_in).clamp_min(1) else 1 - inside[best]
+    fit = lambda weights: y - design @ lstsq(design * weights.sqrt().unsqueeze(-1), y * weights.sqrt())
+    core = side
+    for _ in range(ITERATIONS):  # concentration steps: re-fit on the better-fitting half of that side
+        magnitude = fit(core).abs()
+        core = side * (magnitude <= magnitude[side > 0].median()).to(y.dtype)
+    holds = side
+    for _ in range(ITERATIONS):  # flag against that fit, re-fit on the rows that still hold, until settled
+        residual = fit(core)
+        held = residual[holds > 0]
+        scale = 1.4826 * (held - held.median()).abs().median()
+        flagged = (residual - held.median()).abs() > THRESHOLD * scale.clamp_min(tiny)
+        if (~flagged).double().mean() < MIN_SHARE or torch.equal(~flagged, holds > 0):
             break
-        u = residual / (BISQUARE * scale)
-        weights = ((1 - u**2).clamp_min(0)) ** 2
-        root = weights.sqrt()
-        residual = y - design @ lstsq(design * root.unsqueeze(-1), y * root)
-    return residual
-
-
-def flag(residual: torch.Tensor, threshold: float = THRESHOLD) -> torch.Tensor:
-    scale = 1.4826 * (residual - residual.median()).abs().median()
-    return (residual - residual.median()).abs() > threshold * scale.clamp_min(torch.finfo(residual.dtype).tiny)
+        holds = core = (~flagged).to(y.dtype)
+    if float(explained[best]) < MIN_EXPLAINED:
+        flagged = torch.zeros_like(flagged)
+    regions = {}
+    for r in _candidates(values, quantiles, y.dtype):
+        score = iou(r.mask(values[r.signal]), flagged)
+        if r.signal not in regions or score > regions[r.signal].explained:
+            regions[r.signal] = replace(r, explained=score)
+    ranked = sorted(regions.values(), key=lambda r: -r.explained)
+    return ranked, flagged, residual, float(explained[best])
 
 
 def iou(a: torch.Tensor, b: torch.Tensor) -> float:
@@ -58,12 +105,11 @@ def iou(a: torch.Tensor, b: torch.Tensor) -> float:
     return float((a & b).sum() / union) if union > 0 else 0.0
 
 
-def time_windows(t: torch.Tensor, flagged: torch.Tensor, residual: torch.Tensor, gap: int = 1,
+def time_windows(t: torch.Tensor, flagged: torch.Tensor, residual: torch.Tensor, gap: int = 5,
                  limit: int = 10) -> list[dict]:
     """Runs of flagged rows (merging gaps up to ``gap`` rows), largest residual energy first."""
     windows, start, last = [], None, None
-    indices = torch.nonzero(flagged).flatten().tolist()
-    for i in indices:
+    for i in torch.nonzero(flagged).flatten().tolist():
         if start is None:
             start = last = i
         elif i - last <= gap + 1:
@@ -77,24 +123,6 @@ def time_windows(t: torch.Tensor, flagged: torch.Tensor, residual: torch.Tensor,
     found = [{"start": float(t[a]), "stop": float(t[b]), "energy_share": float((residual[a:b + 1] ** 2).sum() / energy)}
              for a, b in windows]
     return sorted(found, key=lambda w: -w["energy_share"])[:limit]
-
-
-def state_regions(values: dict[str, torch.Tensor], flagged: torch.Tensor, quantiles: int = 39) -> list[Region]:
-    """The best one-signal rule per signal, ranked by IoU with the flagged rows."""
-    regions = []
-    levels = torch.linspace(0.025, 0.975, quantiles, dtype=torch.float64)
-    for name, v in values.items():
-        best = None
-        for kind in ("gt", "lt", "abs_gt", "abs_lt"):
-            base = v.abs() if kind.startswith("abs") else v
-            for a in torch.quantile(base, levels.to(base.dtype)).tolist():
-                region = Region(name, "", 0.0, kind, a)
-                score = iou(region.mask(v), flagged)
-                if best is None or score > best.iou:
-                    best = Region(name, _rule(name, kind, a), score, kind, a)
-        if best is not None:
-            regions.append(best)
-    return sorted(regions, key=lambda r: -r.iou)
 
 
 def _rule(name: str, kind: str, a: float) -> str:

@@ -78,10 +78,10 @@ class GapReport:
                              f"margin {100 * c['margin']:.1f} % to {c['runner_up']}")
             lines.append(f"  starting: {g.start_equation}")
             lines.append(f"  adapted:  {g.adapted_equation}")
-            if g.where["regions"]:
+            if g.where["flagged_fraction"] > 0:
                 r = g.where["regions"][0]
-                lines.append(f"  residual concentrates where {r['rule']} (IoU {r['iou']:.2f}), "
-                             f"{100 * g.where['flagged_fraction']:.0f} % of the record flagged")
+                lines.append(f"  residual concentrates where {r['rule']} (IoU {r['explained']:.2f} with the "
+                             f"{100 * g.where['flagged_fraction']:.0f} % of the record flagged)")
         for label, entry in self.measures.get("free_run", {}).items():
             n = entry["nrmse"]
             closed = entry["gap_closed"]
@@ -119,8 +119,9 @@ def write_markdown(report: GapReport, out: Path, plots: bool = True) -> Path:
                    f"(time blocks and noise); margin {100 * c['margin']:.1f} % held-out RMSE to the runner-up "
                    f"({c['runner_up']}); residual structure left {100 * g.structure_left:.0f} %"]
         md += ["", "### Where", "", f"{100 * g.where['flagged_fraction']:.0f} % of the record flagged.", "",
-               "| region | IoU with flagged rows |", "|---|---|"]
-        md += [f"| `{r['rule']}` | {r['iou']:.2f} |" for r in g.where["regions"]]
+               "| region (best rule per signal) | share of the record | IoU with the flagged rows |",
+               "|---|---|---|"]
+        md += [f"| `{r['rule']}` | {100 * r['share']:.0f} % | {r['explained']:.2f} |" for r in g.where["regions"]]
         md += ["", "| time window | share of residual energy |", "|---|---|"]
         md += [f"| {w['start']:.4g} .. {w['stop']:.4g} | {100 * w['energy_share']:.0f} % |" for w in g.where["time_windows"]]
         md += ["", "Components ranked:", "", "| component | best hypothesis | improvement |", "|---|---|---|"]
@@ -176,7 +177,7 @@ def _plots(report: GapReport, out: Path) -> dict:
             continue
         t, r, flagged = where["t"].cpu(), where["residual"].cpu(), where["flagged"].cpu()
         fig, ax = plt.subplots(figsize=(8, 3))
-        ax.plot(t, r, lw=0.8, color="tab:blue", label="robust residual (weak form)")
+        ax.plot(t, r, lw=0.8, color="tab:blue", label="residual of the starting structure fitted where it holds")
         ax.scatter(t[flagged], r[flagged], s=6, color="tab:red", label="flagged")
         ax.set_xlabel("t"), ax.set_ylabel(f"residual of {target}"), ax.legend(fontsize=7)
         names[f"{target}_residual"] = _save(fig, out, f"{target}_residual_time.png")
