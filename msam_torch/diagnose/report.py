@@ -80,8 +80,8 @@ class GapReport:
             lines.append(f"  adapted:  {g.adapted_equation}")
             if g.where["flagged_fraction"] > 0:
                 r = g.where["regions"][0]
-                lines.append(f"  residual concentrates where {r['rule']} (IoU {r['explained']:.2f} with the "
-                             f"{100 * g.where['flagged_fraction']:.0f} % of the record flagged)")
+                lines.append(f"  the starting model fails where {r['rule']} ({100 * r['share']:.0f} % of the record; "
+                             f"a separate fit there removes {100 * r['explained']:.0f} % of the squared residual)")
         for label, entry in self.measures.get("free_run", {}).items():
             n = entry["nrmse"]
             closed = entry["gap_closed"]
@@ -119,9 +119,9 @@ def write_markdown(report: GapReport, out: Path, plots: bool = True) -> Path:
                    f"(time blocks and noise); margin {100 * c['margin']:.1f} % held-out RMSE to the runner-up "
                    f"({c['runner_up']}); residual structure left {100 * g.structure_left:.0f} %"]
         md += ["", "### Where", "", f"{100 * g.where['flagged_fraction']:.0f} % of the record flagged.", "",
-               "| region (best rule per signal) | share of the record | IoU with the flagged rows |",
+               "| region (best rule per signal) | share of the record | squared residual removed by a separate fit |",
                "|---|---|---|"]
-        md += [f"| `{r['rule']}` | {100 * r['share']:.0f} % | {r['explained']:.2f} |" for r in g.where["regions"]]
+        md += [f"| `{r['rule']}` | {100 * r['share']:.0f} % | {100 * r['explained']:.0f} % |" for r in g.where["regions"]]
         md += ["", "| time window | share of residual energy |", "|---|---|"]
         md += [f"| {w['start']:.4g} .. {w['stop']:.4g} | {100 * w['energy_share']:.0f} % |" for w in g.where["time_windows"]]
         md += ["", "Components ranked:", "", "| component | best hypothesis | improvement |", "|---|---|---|"]
