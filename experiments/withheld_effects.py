@@ -20,7 +20,6 @@ Run (about an hour on 2 busy cores; --quick: a few minutes):
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
 import sys
 import time

@@ -10,7 +10,7 @@ adapted models are compared one-step and in free run (:mod:`msam_torch.simulate`
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import torch
@@ -91,16 +91,11 @@ def diagnose(config: Config | dict | str | Path, data: Dataset | str | Path | No
         verdict = NOT_EXPLAINED
     else:
         verdict = NO_GAP
-    data_info = {"train": _info(train), "held_out": _info(held_out) if held_out is not None else "alternate time blocks",
+    data_info = {"train": dict(train.info), "held_out": dict(held_out.info) if held_out is not None else "alternate time blocks",
                  "nominal_parameters": parameters}
     return GapReport(verdict=verdict, equations=tuple(gaps), measures=gap_measures, data=data_info,
                      options=asdict(options), config=config.model_dump(mode="json"),
                      seconds=time.perf_counter() - started, series=series)
-
-
-def _info(dataset: Dataset) -> dict:
-    return {k: v for k, v in dataset.info.items() if k != "noise_level"} | {
-        "noise_level": dataset.info.get("noise_level", {})}
 
 
 def _datasets(config, spec, data, validate, base_dir, dtype):
@@ -245,7 +240,7 @@ def _diagnose_equation(spec, equation, train, held_out, parameters, options, gen
     margin = float((rmse[runner] - reference) / reference) if runner is not None and reference > 0 else float("inf")
 
     # structure the best hypothesis leaves, as a share of the structure in the re-fitted start's residual
-    structure = _structure_left(extended, equation, signals, tests, val_signals, val_tests, fit_rows, val_rows,
+    structure = _structure_left(equation, signals, tests, val_signals, val_tests, fit_rows, val_rows,
                                 data, val_data, choices, original, best)
     if not is_significant:
         verdict = NO_GAP
@@ -267,6 +262,7 @@ def _diagnose_equation(spec, equation, train, held_out, parameters, options, gen
     components.sort(key=lambda d: -d["improvement"])
     ranking = [{"hypothesis": hypotheses[c].label(equation), "kind": hypotheses[c].kind, "effect": names[c],
                 "exponent": _exponent(hypotheses[c], equation, original.gamma[0, c]),
+                "catalogue_exponent": _named_exponent(hypotheses[c], equation, names[c], snapped[c]),
                 "equation": _equation_text(extended, equation, choices[c], original.gamma[0, c],
                                            _data_theta(original, c, choices, scale), original.theta_fixed[0, c]),
                 "heldout_rmse": float(rmse[c]), "improvement": float(1 - rmse[c] / rmse[0])} for c in order_c]
@@ -276,6 +272,7 @@ def _diagnose_equation(spec, equation, train, held_out, parameters, options, gen
         effect=outcome if is_significant else None,
         hypothesis=hypotheses[winner].label(equation),
         exponent=_exponent(hypotheses[winner], equation, original.gamma[0, winner]),
+        catalogue_exponent=_named_exponent(hypotheses[winner], equation, names[winner], snapped[winner]),
         start_equation=format_equation(equation.target, nominal.tolist(), [c.term.text for c in equation.components]),
         retuned_equation=_equation_text(extended, equation, choices[0], original.gamma[0, 0],
                                         _data_theta(original, 0, choices, scale), original.theta_fixed[0, 0]),
@@ -307,6 +304,13 @@ def _scatter(part: Fitted, keep: torch.Tensor, c: int) -> Fitted:
 def _slot(equation: Equation, h: Hypothesis) -> int:
     q = len(equation.adjustable)
     return equation.adjustable.index(h.component) + (q if h.kind == "additive" else 0)
+
+
+def _named_exponent(h: Hypothesis, equation: Equation, name: str, gamma: torch.Tensor) -> float | None:
+    """The exponent a catalogue name refers to (the fitted one moved into the entry's interval)."""
+    if h.kind == "retuned" or name in (NO_GAP, catalogue.NOT_CATALOGUED):
+        return None
+    return float(gamma[_slot(equation, h)])
 
 
 def _snapped_names(equation, hypotheses, fit_data, val_data, val_rows, choices, fitted, rmse, nominal, keep):
@@ -343,7 +347,7 @@ def _snapped_names(equation, hypotheses, fit_data, val_data, val_rows, choices, 
                                           float(theta[k, c, s]), float(nominal[h.component]))
             row.append(named if bool(kept[k, c]) else catalogue.NOT_CATALOGUED)
         names.append(row)
-    return names, gamma[..., :]
+    return names, gamma
 
 
 def _exponent(h: Hypothesis, equation: Equation, gamma: torch.Tensor) -> float | None:
@@ -400,7 +404,7 @@ def _features(equation, signals, tests):
     return names, torch.stack([tests.average(signals[n]) for n in names], -1)
 
 
-def _structure_left(extended, equation, signals, tests, val_signals, val_tests, fit_rows, val_rows, data, val_data,
+def _structure_left(equation, signals, tests, val_signals, val_tests, fit_rows, val_rows, data, val_data,
                     choices, original, best) -> float:
     """Share of the re-fitted start's residual structure (what a k-nearest-neighbour regression on
     the equation's signals predicts on held-out rows) that hypothesis ``best`` leaves."""

@@ -21,7 +21,7 @@ import torch
 
 from ..candidates import EquationData, Selection, columns, predict
 from ..expressions import parse
-from ..spec import Component, Equation
+from ..spec import Equation
 from ..step import State, StepOptions, evaluate, step
 
 ADDITIVE_STARTS = (-0.5, 0.5, 1.5)
@@ -45,11 +45,6 @@ class Hypothesis:
         if self.kind == "multiplicative":
             return f"{term} -> {term}*{f}^g"
         return f"{term} + {term}*{f}^g"
-
-    @property
-    def parameters(self) -> int:
-        """Free parameters beyond the re-fitted theta."""
-        return {"retuned": 0, "multiplicative": 1, "additive": 2}[self.kind]
 
 
 def extended_equation(equation: Equation) -> Equation:

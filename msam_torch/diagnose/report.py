@@ -24,7 +24,9 @@ class EquationGap:
     ``significant``: an effect passed the null-verdict rule; ``verdict``: 'gap explained by
     <effect>', 'no significant gap' or 'gap not explained by the candidate set'; ``effect``: the
     catalogue name of the best hypothesis (or 'power law, no catalogued effect'), None without a
-    gap; ``hypothesis``/``exponent``: the winning hypothesis and its exponent; ``*_equation``: the
+    gap; ``hypothesis``/``exponent``: the winning hypothesis and its fitted exponent;
+    ``catalogue_exponent``: the exponent the name refers to (the fitted one moved into the
+    catalogue interval, when that keeps most of the improvement), else None; ``*_equation``: the
     starting, theta-retuned and adapted equations; ``confidence``: ``margin`` (held-out RMSE of
     the best hypothesis with another name, relative), ``runner_up``, ``win_frequency`` over
     ``bootstrap_trials`` and the ``outcomes`` counted; ``improvement``: held-out weak-form RMSE of
@@ -41,6 +43,7 @@ class EquationGap:
     effect: str | None
     hypothesis: str
     exponent: float | None
+    catalogue_exponent: float | None
     start_equation: str
     retuned_equation: str
     adapted_equation: str
@@ -72,7 +75,8 @@ class GapReport:
             c = g.confidence
             lines.append(f"{g.target}: {g.verdict}")
             if g.significant:
-                lines.append(f"  best: {g.hypothesis} ({g.effect}), exponent {g.exponent:.3f}; "
+                named = "" if g.catalogue_exponent is None else f" (catalogue {g.catalogue_exponent:.3f})"
+                lines.append(f"  best: {g.hypothesis} ({g.effect}), exponent {g.exponent:.3f}{named}; "
                              f"held-out RMSE -{100 * g.improvement['relative']:.1f} % vs theta re-fitted; "
                              f"bootstrap wins {100 * c['win_frequency']:.0f} % of {c['bootstrap_trials']}, "
                              f"margin {100 * c['margin']:.1f} % to {c['runner_up']}")
@@ -108,7 +112,7 @@ class GapReport:
 def write_markdown(report: GapReport, out: Path, plots: bool = True) -> Path:
     """A self-contained Markdown report next to its PNG plots."""
     figures = _plots(report, out) if plots else {}
-    md = [f"# Sim-to-real gap report", "", f"**Verdict: {report.verdict}**", ""]
+    md = ["# Sim-to-real gap report", "", f"**Verdict: {report.verdict}**", ""]
     for g in report.equations:
         md += [f"## {g.target}", "", f"- verdict: {g.verdict}", f"- starting model: `{g.start_equation}`",
                f"- theta re-fitted: `{g.retuned_equation}`", f"- adapted model: `{g.adapted_equation}`"]
