@@ -60,6 +60,10 @@ def _run(args) -> int:
 def _diagnose(args) -> int:
     from .diagnose import diagnose
 
+    if args.threads:
+        import torch
+
+        torch.set_num_threads(args.threads)
     report = diagnose(args.config, data=args.data, validate=args.validate, overrides=args.overrides)
     out = Path(args.out or Path("runs") / f"{Path(args.config).stem}_diagnosis")
     path = report.save(out)
@@ -86,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     diag.add_argument("--data", help="measured CSV/Parquet file (default: the config's data)")
     diag.add_argument("--validate", help="held-out CSV/Parquet file, ideally from another excitation")
     diag.add_argument("--out", help="output folder (default runs/<config name>_diagnosis)")
+    diag.add_argument("--threads", type=int, help="torch CPU threads (1 is fastest on a busy machine)")
     diag.set_defaults(handler=_diagnose)
     args, extra = parser.parse_known_args(argv)  # overrides may follow options
     unknown = [e for e in extra if e.startswith("-") or "=" not in e]

@@ -75,6 +75,9 @@ def diagnose(config: Config | dict | str | Path, data: Dataset | str | Path | No
     spec = ModelSpec.from_config(config.model)
     dtype = getattr(torch, config.adaptation.dtype)
     train, held_out = _datasets(config, spec, data, validate, base_dir, dtype)
+    device = torch.device(config.adaptation.device)
+    train, held_out = (None if d is None else replace(d, signals={k: v.to(device) for k, v in d.signals.items()})
+                       for d in (train, held_out))
     started = time.perf_counter()  # the diagnosis itself, data loading excluded
     parameters = nominal_parameters(config, spec)
     generator = torch.Generator().manual_seed(options.seed)
@@ -176,11 +179,11 @@ def _diagnose_equation(spec, equation, train, held_out, parameters, options, gen
         val_signals = _subsample(held_out.signals, options.quadrature_samples)
         val_dt = float(val_signals["t"][1] - val_signals["t"][0])
         val_tests = TestFunctions.build(val_signals["t"], max(4, round(half_width / val_dt)))
-        fit_rows = torch.ones(m, dtype=torch.bool)
+        fit_rows = torch.ones(m, dtype=torch.bool, device=t.device)
         val_data = _weak_data(extended, val_signals, val_tests, scale)
-        val_rows = torch.ones(val_data.y.shape[-1], dtype=torch.bool)
+        val_rows = torch.ones(val_data.y.shape[-1], dtype=torch.bool, device=t.device)
     else:
-        block = torch.div(torch.arange(m) * options.blocks, m, rounding_mode="floor")
+        block = torch.div(torch.arange(m, device=t.device) * options.blocks, m, rounding_mode="floor")
         fit_rows = block % 2 == 0
         val_tests, val_signals, val_rows = tests, signals, ~fit_rows
         val_data = _weak_data(extended, signals, tests, scale)
@@ -204,13 +207,13 @@ def _diagnose_equation(spec, equation, train, held_out, parameters, options, gen
     if options.bootstrap > 0:
         weights = confidence.block_weights(fit_rows, options.bootstrap, options.blocks, generator)
         row_noise = noise * float(torch.linalg.vector_norm(tests.kernels[order]))
-        jitter = row_noise * torch.randn(options.bootstrap, m, generator=generator, dtype=t.dtype)
+        jitter = row_noise * torch.randn(options.bootstrap, m, generator=generator, dtype=t.dtype).to(t.device)
         boot_data = _weak_data(extended, signals, tests, weights=weights, jitter=jitter)
         effects = [int(c) for c in torch.argsort(rmse) if c != 0 and torch.isfinite(rmse[c])]
-        keep = torch.tensor([0] + effects[:options.bootstrap_hypotheses])
+        keep = torch.tensor([0] + effects[:options.bootstrap_hypotheses], device=t.device)
         part = fit(boot_data, choices[keep], original.gamma[:, keep], step_options, options.bootstrap_steps)
-        boot, boot_rmse = _scatter(part, keep, len(hypotheses)), torch.full((options.bootstrap, len(hypotheses)), torch.inf,
-                                                                          dtype=t.dtype)
+        boot = _scatter(part, keep, len(hypotheses))
+        boot_rmse = torch.full((options.bootstrap, len(hypotheses)), torch.inf, dtype=t.dtype, device=t.device)
         boot_rmse[:, keep] = heldout_rmse(part, choices[keep])
 
     nominal = spec.theta(equation, parameters).to(t)
@@ -218,7 +221,7 @@ def _diagnose_equation(spec, equation, train, held_out, parameters, options, gen
                                                       fitted, r, nominal, options.snap_keep)
     names, snapped = snap(data, original, rmse.unsqueeze(0))
     names, snapped = names[0], snapped[0]
-    is_effect = torch.tensor([h.kind != "retuned" for h in hypotheses])
+    is_effect = torch.tensor([h.kind != "retuned" for h in hypotheses], device=t.device)
     candidates_rmse = torch.where(is_effect, rmse, torch.full_like(rmse, torch.inf))
     best = int(candidates_rmse.argmin())
     is_significant = bool(confidence.significant(rmse[best], rmse[0], target_rms, options.relative, options.absolute))
@@ -294,7 +297,7 @@ def _diagnose_equation(spec, equation, train, held_out, parameters, options, gen
 def _scatter(part: Fitted, keep: torch.Tensor, c: int) -> Fitted:
     """Bootstrap results of the hypotheses ``keep`` placed among all ``c`` (others invalid)."""
     def full(x, fill):
-        out = torch.full((x.shape[0], c) + x.shape[2:], fill, dtype=x.dtype)
+        out = torch.full((x.shape[0], c) + x.shape[2:], fill, dtype=x.dtype, device=x.device)
         out[:, keep] = x
         return out
     return Fitted(full(part.gamma, 0.0), full(part.theta, 0.0), full(part.theta_fixed, 0.0),

@@ -43,5 +43,5 @@ def interval(samples: torch.Tensor, level: float = 0.9) -> list[float]:
     samples = samples[torch.isfinite(samples)]
     if samples.numel() == 0:
         return [float("nan"), float("nan")]
-    q = torch.tensor([(1 - level) / 2, (1 + level) / 2], dtype=samples.dtype)
+    q = torch.tensor([(1 - level) / 2, (1 + level) / 2], dtype=samples.dtype, device=samples.device)
     return torch.quantile(samples, q).tolist()
