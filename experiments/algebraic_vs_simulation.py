@@ -61,8 +61,7 @@ def algebraic(config, spec, sets) -> tuple[list, list]:
     labels, exponents = [[] for _ in sets], [[] for _ in sets]
     for equation in spec.equations:
         data = EquationData.build(equation, train.signals, config.adaptation.normalize)
-        data = EquationData(*(v.expand((len(sets),) + v.shape[1:]) for v in
-                              (data.y, data.components, data.fixed_components, data.log_f, data.sign_f, data.scale)))
+        data = data.expand_trials(len(sets))
         theta = torch.stack([spec.theta(equation, p) for p in sets])
         fit = make_trainer(config).fit(data, theta[:, list(equation.adjustable)], theta[:, list(equation.fixed)])
         for k in range(len(sets)):

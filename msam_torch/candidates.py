@@ -11,8 +11,8 @@ components, ``F`` adjustment functions.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
-from typing import Mapping
+from dataclasses import dataclass, field, fields, replace
+from typing import Callable, Mapping, Optional
 
 import torch
 from torch import nn
@@ -38,6 +38,9 @@ class EquationData:
     ``normalize='rms'`` every adjustable component ``M_i`` is divided by its RMS too
     (``component_scale``), so every column the step sees (Eq. 15-17) is dimensionless and a theta
     in the data's units is ``theta_normalised * scale^-gamma / component_scale``.
+    ``project`` (optional) is a linear map along the sample axis applied to the adjusted columns
+    (..., N, Q) -> (..., M, Q), e.g. integration against test functions (weak form); ``y`` and
+    ``fixed_components`` are then given in the projected space (M rows).
     """
 
     y: torch.Tensor  # (T, N) target derivative
@@ -47,6 +50,7 @@ class EquationData:
     sign_f: torch.Tensor  # (T, N, F)
     scale: torch.Tensor  # (T, F)
     component_scale: torch.Tensor | None = None  # (T, Q); None means 1
+    project: Optional[Callable[[torch.Tensor], torch.Tensor]] = None
 
     @property
     def theta_scale(self) -> torch.Tensor:
@@ -54,6 +58,11 @@ class EquationData:
         if self.component_scale is None:
             return torch.ones_like(self.components[:, 0])
         return self.component_scale
+
+    def expand_trials(self, trials: int) -> "EquationData":
+        """The same data viewed ``trials`` times along the leading axis (no copy)."""
+        grow = lambda v: v.expand(trials, *v.shape[1:]) if torch.is_tensor(v) else v
+        return replace(self, **{f.name: grow(getattr(self, f.name)) for f in fields(self)})
 
     @classmethod
     def build(cls, equation: Equation, signals: Mapping[str, torch.Tensor], normalize: str = "none") -> "EquationData":
@@ -99,7 +108,8 @@ class EquationData:
         c, q = index.shape[-2:]
         gather = lambda values: values.unsqueeze(1).expand(t, c, n, -1).gather(-1, index.unsqueeze(2).expand(t, c, n, q))
         signed = self.components.unsqueeze(1) * gather(self.sign_f)
-        return Selection(self.y.unsqueeze(1), signed, gather(self.log_f), self.fixed_components.unsqueeze(1))
+        return Selection(self.y.unsqueeze(1), signed, gather(self.log_f), self.fixed_components.unsqueeze(1),
+                         self.project)
 
 
 @dataclass(frozen=True)
@@ -110,6 +120,7 @@ class Selection:
     signed_components: torch.Tensor  # (T, C, N, Q): M_i * sign factor of its f
     log_f: torch.Tensor  # (T, C, N, Q)
     fixed_components: torch.Tensor  # (T, 1, N, P)
+    project: Optional[Callable[[torch.Tensor], torch.Tensor]] = None  # see EquationData
     _factors: dict = field(default_factory=dict, repr=False, compare=False)
 
     def perturbation_factor(self, dgamma: float) -> torch.Tensor:
@@ -126,11 +137,13 @@ def power(log_f: torch.Tensor, gamma: torch.Tensor) -> torch.Tensor:
 
 
 def columns(selection: Selection, gamma: torch.Tensor) -> torch.Tensor:
-    """Adjusted components ``M_i f_i^gamma_i`` (Eq. 9) for gamma of shape (..., T, C, Q).
+    """Adjusted components ``M_i f_i^gamma_i`` (Eq. 9) for gamma of shape (..., T, C, Q),
+    mapped by ``selection.project`` when one is set.
 
     The same values as ``signed_components * power(log_f, gamma)``, computed in one buffer."""
     value = gamma.unsqueeze(-2) * selection.log_f
-    return value.clamp_(max=MAX_LOG).exp_().mul_(selection.signed_components)
+    cols = value.clamp_(max=MAX_LOG).exp_().mul_(selection.signed_components)
+    return cols if selection.project is None else selection.project(cols)
 
 
 def predict(selection: Selection, cols: torch.Tensor, theta: torch.Tensor, theta_fixed: torch.Tensor) -> torch.Tensor:

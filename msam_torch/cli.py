@@ -1,4 +1,5 @@
-"""Command line: ``msam run CONFIG [--out DIR] [key=value ...]``.
+"""Command line: ``msam run CONFIG [--out DIR] [key=value ...]`` and
+``msam diagnose CONFIG [--data FILE] [--validate FILE] [--out DIR] [key=value ...]``.
 
 Errors in the user's input print one line naming the place (key, file, column, row) and exit
 with status 2, without a traceback. Nothing is written unless the run succeeds.
@@ -64,6 +65,21 @@ def _run(args) -> int:
     return 0
 
 
+def _diagnose(args) -> int:
+    from .diagnose import diagnose
+
+    if args.threads:
+        import torch
+
+        torch.set_num_threads(args.threads)
+    report = diagnose(args.config, data=args.data, validate=args.validate, overrides=args.overrides)
+    out = Path(args.out or Path("runs") / f"{Path(args.config).stem}_diagnosis")
+    path = report.save(out)
+    print(report)
+    print(f"wrote {path} and {out / 'report.md'}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="msam", description="Model Structure Adaptation Method (MSAM) with PyTorch.")
     parser.add_argument("--version", action="version", version=f"msam-torch {__version__}")
@@ -75,6 +91,15 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("--no-tensorboard", action="store_true", help="do not write TensorBoard event files")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.set_defaults(handler=_run)
+    diag = commands.add_parser("diagnose", help="say where the starting model of CONFIG misses its data, which "
+                               "unmodelled effect causes it and how far adding it shrinks the gap")
+    diag.add_argument("config", help="YAML config (its 'model' is the starting model)")
+    diag.add_argument("overrides", nargs="*", help="config overrides such as data.noise=0.01")
+    diag.add_argument("--data", help="measured CSV/Parquet file (default: the config's data)")
+    diag.add_argument("--validate", help="held-out CSV/Parquet file, ideally from another excitation")
+    diag.add_argument("--out", help="output folder (default runs/<config name>_diagnosis)")
+    diag.add_argument("--threads", type=int, help="torch CPU threads (1 is fastest on a busy machine)")
+    diag.set_defaults(handler=_diagnose)
     args, extra = parser.parse_known_args(argv)  # overrides may follow options
     unknown = [e for e in extra if e.startswith("-") or "=" not in e]
     if unknown:

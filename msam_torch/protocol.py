@@ -55,12 +55,6 @@ def trial_parameters(parameters: dict, trial: Trial, seed: int) -> dict:
     return perturb_parameters(parameters, trial.level, generator)
 
 
-def expand_trials(data: EquationData, trials: int) -> EquationData:
-    """The same data viewed ``trials`` times along the leading axis (no copy)."""
-    return EquationData(*(getattr(data, f.name).expand(trials, *getattr(data, f.name).shape[1:])
-                          for f in dataclasses.fields(EquationData)))
-
-
 def chunk_size(trials: int, samples: int, adjustable: int, max_elements: int = MAX_ELEMENTS) -> int:
     """Candidates per chunk so that one (T, C, N, Q) tensor holds at most ``max_elements`` values."""
     return max(1, max_elements // max(1, trials * samples * max(1, adjustable)))
@@ -118,6 +112,6 @@ def fit_equation(config: Config, spec: ModelSpec, equation: Equation, signals: d
         trainer.chunk_size = min(trainer.chunk_size, chunk_size(theta.shape[0], n, q, max_elements))
         if on_trainer is not None:
             on_trainer(trainer, equation)
-        fits.append(trainer.fit(expand_trials(data, theta.shape[0]), theta[:, list(equation.adjustable)],
+        fits.append(trainer.fit(data.expand_trials(theta.shape[0]), theta[:, list(equation.adjustable)],
                                 theta[:, list(equation.fixed)], start))
     return concat_fits(fits), thetas, data.scale[0]

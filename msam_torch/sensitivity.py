@@ -56,9 +56,20 @@ def condition_number(phi: torch.Tensor) -> torch.Tensor:
     return gram_condition_number(phi.mT @ phi)
 
 
+def safe_eigh(matrix: torch.Tensor):
+    """``torch.linalg.eigh`` of a batch in which some matrices may hold inf or nan (a diverging
+    candidate): those are replaced by the identity so the rest of the batch is unaffected.
+    Returns eigenvalues, eigenvectors and the mask of finite matrices."""
+    finite = torch.isfinite(matrix).all(-1).all(-1)
+    eye = torch.eye(matrix.shape[-1], dtype=matrix.dtype, device=matrix.device)
+    values, vectors = torch.linalg.eigh(torch.where(finite[..., None, None], matrix, eye))
+    return values, vectors, finite
+
+
 def gram_condition_number(gram: torch.Tensor) -> torch.Tensor:
-    """``lambda_max / lambda_min`` of a Gram matrix ``Phi^T Phi`` (inf where singular): (...,)."""
-    eigenvalues = torch.linalg.eigvalsh(gram)
+    """``lambda_max / lambda_min`` of a Gram matrix ``Phi^T Phi`` (inf where singular or not
+    finite): (...,)."""
+    eigenvalues, _, finite = safe_eigh(gram)
     smallest = eigenvalues[..., 0].clamp_min(0)
     ratio = eigenvalues[..., -1] / smallest
-    return torch.where(smallest > 0, ratio, torch.full_like(ratio, torch.inf))
+    return torch.where((smallest > 0) & finite, ratio, torch.full_like(ratio, torch.inf))

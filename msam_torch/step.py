@@ -12,7 +12,7 @@ import torch
 
 from .candidates import Selection, columns, predict
 from .fitness import correlation, scores
-from .sensitivity import gram_condition_number, perturbation_magnitude_from_change
+from .sensitivity import gram_condition_number, perturbation_magnitude_from_change, safe_eigh
 
 LINE_SEARCH_STEPS = (1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125)
 
@@ -93,12 +93,13 @@ def solve_normal(gram: torch.Tensor, rhs: torch.Tensor, damping: float = 0.0, rc
         scaled = scaled + damping * torch.eye(gram.shape[-1], dtype=gram.dtype, device=gram.device)
     column = (lambda v: v.unsqueeze(-1)) if many else (lambda v: v)
     rhs = rhs / column(safe) if many else (rhs / safe).unsqueeze(-1)
-    values, vectors = torch.linalg.eigh(scaled)
+    values, vectors, finite = safe_eigh(scaled)  # a non-finite system gets a nan solution (diverged)
     keep = values > rcond * values[..., -1:].clamp_min(torch.finfo(gram.dtype).tiny)
     inverse = torch.where(keep, 1.0 / torch.where(keep, values, torch.ones_like(values)), torch.zeros_like(values))
     x = vectors @ (inverse.unsqueeze(-1) * (vectors.mT @ rhs))
     x = x if many else x.squeeze(-1)
-    return torch.where(column(norms) > 0, x / column(safe), torch.zeros_like(x))
+    x = torch.where(column(norms) > 0, x / column(safe), torch.zeros_like(x))
+    return torch.where(finite.view(finite.shape + (1,) * (x.dim() - finite.dim())), x, torch.full_like(x, torch.nan))
 
 
 def design_matrix(selection: Selection, cols: torch.Tensor) -> torch.Tensor:
@@ -139,7 +140,10 @@ def step(selection: Selection, state: State, current: Evaluation, options: StepO
     ``cond(Phi^T Phi)`` with and without dM scaling (Figure 5).
     """
     eps = selection.y - current.yhat
-    change = current.cols * selection.perturbation_factor(options.dgamma)  # S(Gamma + dgamma e_i) - S
+    if selection.project is None:  # S(Gamma + dgamma e_i) - S: column i times |f_i|^dgamma - 1
+        change = current.cols * selection.perturbation_factor(options.dgamma)
+    else:  # projected columns (weak form): perturb, then project
+        change = columns(selection, state.gamma + options.dgamma) - current.cols
     dm = perturbation_magnitude_from_change(current.cols, change)
     theta = current.theta
     if options.theta == "varpro":  # Kaufman: project the sensitivities off the span of the columns

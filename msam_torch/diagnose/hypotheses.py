@@ -1,0 +1,124 @@
+"""Candidate explanations of a gap in one state equation, fitted together as a batch.
+
+Every hypothesis is a candidate (Eq. 8-9) of one *extended* equation: the starting components,
+a copy of every adjustable component, and the adjustment set F plus two constant functions, ``1``
+(component left as it is) and ``0`` (copy switched off). So one batch holds
+
+- ``retuned``: the starting model with every theta re-fitted (the null hypothesis);
+- ``multiplicative``: one component adjusted, ``M_i -> M_i |f|^gamma`` (the paper's Eq. 8);
+- ``additive``: one component split into two copies (design.md section 3): the original
+  ``theta_i M_i`` and a copy ``theta_i' M_i |f|^gamma`` with its own exponent and theta, started
+  at several exponents away from 0 (at 0 the copies coincide and never separate).
+
+The fit is variable projection (theta re-solved every step) with damped Gauss-Newton steps on
+gamma, taken by :func:`msam_torch.step.step` on all trials and hypotheses at once.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import torch
+
+from ..candidates import EquationData, Selection, columns, predict
+from ..expressions import parse
+from ..spec import Equation
+from ..step import State, StepOptions, evaluate, step
+
+ADDITIVE_STARTS = (-0.5, 0.5, 1.5)
+COLLINEAR = 0.15  # |gamma| of an additive copy below which it is a log pair of its original (rejected)
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One candidate explanation: ``kind``, the component (index in the equation), the function."""
+
+    kind: str  # 'retuned', 'multiplicative' or 'additive'
+    component: int | None = None
+    function: int | None = None
+    start: float = 0.0
+
+    def label(self, equation: Equation) -> str:
+        if self.kind == "retuned":
+            return "starting model, theta re-fitted"
+        term = equation.components[self.component].term.text
+        f = equation.adjustments[self.function].text
+        if self.kind == "multiplicative":
+            return f"{term} -> {term}*{f}^g"
+        return f"{term} + {term}*{f}^g"
+
+
+def extended_equation(equation: Equation) -> Equation:
+    """Starting components + a copy of every adjustable one; F + the constants 1 and 0."""
+    copies = tuple(replace(equation.components[i], adjustable=True) for i in equation.adjustable)
+    constants = (parse("1", "diagnose", set()), parse("0", "diagnose", set()))
+    return Equation(equation.target, equation.components + copies, equation.adjustments + constants)
+
+
+def enumerate_hypotheses(equation: Equation, starts=ADDITIVE_STARTS) -> list[Hypothesis]:
+    found = [Hypothesis("retuned")]
+    for i in equation.adjustable:
+        for f in range(len(equation.adjustments)):
+            found.append(Hypothesis("multiplicative", i, f))
+    for i in equation.adjustable:
+        for f in range(len(equation.adjustments)):
+            found.extend(Hypothesis("additive", i, f, s) for s in starts)
+    return found
+
+
+def encode(equation: Equation, hypotheses: list[Hypothesis], device=None):
+    """Choices (C, 2Q) into the extended adjustment set, and starting exponents (C, 2Q)."""
+    q, n_f = len(equation.adjustable), len(equation.adjustments)
+    one, zero = n_f, n_f + 1
+    choices = torch.full((len(hypotheses), 2 * q), zero, dtype=torch.long)
+    choices[:, :q] = one
+    starts = torch.zeros(len(hypotheses), 2 * q, dtype=torch.float64)
+    slot = {i: k for k, i in enumerate(equation.adjustable)}
+    for c, h in enumerate(hypotheses):
+        if h.kind == "multiplicative":
+            choices[c, slot[h.component]] = h.function
+        elif h.kind == "additive":
+            choices[c, q + slot[h.component]] = h.function
+            starts[c, q + slot[h.component]] = h.start
+    return choices.to(device), starts.to(device)
+
+
+@dataclass(frozen=True)
+class Fitted:
+    """Exponents and theta of every trial and hypothesis: (T, C, 2Q), (T, C, 2Q), (T, C, P)."""
+
+    gamma: torch.Tensor
+    theta: torch.Tensor
+    theta_fixed: torch.Tensor
+    fitness: torch.Tensor  # (T, C) best fitness (Eq. 19) on the fitted rows
+    invalid: torch.Tensor  # (T, C) diverged, non-finite or a log pair
+
+
+def fit(data: EquationData, choices: torch.Tensor, start: torch.Tensor, options: StepOptions, steps: int) -> Fitted:
+    """Iterate the step on every trial and hypothesis; keep each one's best state (Algorithm 1)."""
+    selection = data.select(choices)
+    t = selection.y.shape[0]
+    gamma = start.expand((t,) + choices.shape).to(selection.y.dtype).clone()
+    zeros = lambda k: gamma.new_zeros(gamma.shape[:-1] + (k,))
+    state = State(gamma, zeros(gamma.shape[-1]), zeros(selection.fixed_components.shape[-1]),
+                  torch.zeros(gamma.shape[:-1], dtype=torch.bool, device=gamma.device))
+    current = evaluate(selection, state, options)
+    best_fitness, best_gamma = current.fitness, state.gamma
+    for _ in range(steps):
+        state = step(selection, state, current, options).state
+        current = evaluate(selection, state, options)
+        improved = current.fitness > best_fitness
+        best_fitness = torch.where(improved, current.fitness, best_fitness)
+        best_gamma = torch.where(improved.unsqueeze(-1), state.gamma, best_gamma)
+    final = evaluate(selection, replace(state, gamma=best_gamma), options)
+    q = choices.shape[-1] // 2
+    copy_on = choices[:, q:] < data.log_f.shape[-1] - 2  # additive slots in use
+    log_pair = (copy_on & (best_gamma[..., q:].abs() < COLLINEAR)).any(-1)
+    invalid = state.diverged | ~torch.isfinite(best_fitness) | log_pair
+    return Fitted(best_gamma, final.theta, final.theta_fixed, best_fitness, invalid)
+
+
+def predict_rows(data: EquationData, choices: torch.Tensor, fitted: Fitted) -> torch.Tensor:
+    """Output of every trial and hypothesis on ``data`` (e.g. held-out rows): (T, C, M)."""
+    selection: Selection = data.select(choices)
+    cols = columns(selection, fitted.gamma)
+    return predict(selection, cols, fitted.theta, fitted.theta_fixed)

@@ -1,0 +1,119 @@
+"""Where the gap lies: the state-space region and time windows where the starting model fails.
+
+For every one-signal rule ``R`` (``s > a``, ``s < a``, ``|s| > a``, ``|s| < a``, ``a`` on a grid of
+quantiles), the starting structure is fitted separately inside and outside ``R`` on the one-step
+rows (estimated derivative), each regime with theta free plus an offset and a ``sign(s)`` term so
+that piecewise-affine changes (an engaging spring, a friction offset) are captured exactly; all
+rules are fitted as one batch. The rule whose two-regime fit removes the most squared residual is
+where the model changes behaviour. Of its two sides, the one where the plain starting structure
+fits better (per row) is where the model holds; the other side's rows are flagged (when the split
+removes at least ``MIN_EXPLAINED`` of the single-fit residual) and merged into time windows.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import torch
+
+from ..step import lstsq
+
+MIN_EXPLAINED = 0.2
+MIN_SHARE = 0.1  # each regime holds at least this share of the rows
+FLIP = {"gt": "lt", "lt": "gt", "abs_gt": "abs_lt", "abs_lt": "abs_gt"}
+
+
+@dataclass(frozen=True)
+class Region:
+    signal: str
+    rule: str  # e.g. '|x| > 0.8'
+    kind: str  # 'gt', 'lt', 'abs_gt', 'abs_lt'
+    value: float
+    share: float  # fraction of the rows inside
+    explained: float  # share of the single-fit squared residual the two-regime fit removes
+
+    def mask(self, values: torch.Tensor) -> torch.Tensor:
+        v = values.abs() if self.kind.startswith("abs") else values
+        return v > self.value if self.kind.endswith("gt") else v < self.value
+
+    def flipped(self) -> "Region":
+        kind = FLIP[self.kind]
+        return replace(self, kind=kind, rule=_rule(self.signal, kind, self.value), share=1 - self.share)
+
+
+def _sse(design: torch.Tensor, y: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """Weighted least-squares residual sum of squares for every row of ``weights`` (R, M) -> (R,)."""
+    root = weights.sqrt()
+    x = lstsq(design * root.unsqueeze(-1), y * root)
+    return (weights * (y - (design @ x.unsqueeze(-1)).squeeze(-1)) ** 2).sum(-1)
+
+
+def _candidates(values: dict[str, torch.Tensor], quantiles: int, dtype) -> list[Region]:
+    levels = torch.linspace(0.025, 0.975, quantiles, dtype=dtype)
+    rules = []
+    for name, v in values.items():
+        for kind in ("gt", "lt", "abs_gt", "abs_lt"):
+            base = v.abs() if kind.startswith("abs") else v
+            for a in torch.quantile(base, levels).tolist():
+                region = Region(name, _rule(name, kind, a), kind, a, 0.0, 0.0)
+                share = float(region.mask(v).double().mean())
+                if MIN_SHARE <= share <= 1 - MIN_SHARE:
+                    rules.append(replace(region, share=share))
+    return rules
+
+
+def localise(design: torch.Tensor, y: torch.Tensor, values: dict[str, torch.Tensor], quantiles: int = 39):
+    """``(regions, flagged, residual, explained)``: the best rule per signal (oriented to the side
+    where the model fails), the flagged rows (M,), the residual of the plain starting structure
+    fitted where it holds, and the squared residual the best split removes."""
+    tiny = torch.finfo(y.dtype).tiny
+    total = _sse(design, y, torch.ones_like(y).unsqueeze(0))[0].clamp_min(tiny)
+    rules = _candidates(values, quantiles, y.dtype)
+    if not rules:
+        return [], torch.zeros_like(y, dtype=torch.bool), y - design @ lstsq(design, y), 0.0
+    inside = torch.stack([r.mask(values[r.signal]) for r in rules]).to(y.dtype)  # (R, M)
+    extra = torch.stack([torch.stack([torch.ones_like(y), torch.sign(values[r.signal])], -1) for r in rules])
+    augmented = torch.cat([design.expand(len(rules), -1, -1), extra], -1)  # (R, M, K + 2)
+    explained = 1 - (_sse(augmented, y, inside) + _sse(augmented, y, 1 - inside)) / total
+    rows_in = inside.sum(-1)
+    plain_in = _sse(design, y, inside) / rows_in
+    plain_out = _sse(design, y, 1 - inside) / (len(y) - rows_in)
+    fails_inside = plain_in > plain_out
+    oriented = [r if bool(fails_inside[k]) else r.flipped() for k, r in enumerate(rules)]
+    best_per_signal = {}
+    for k, r in enumerate(oriented):
+        score = float(explained[k])
+        if r.signal not in best_per_signal or score > best_per_signal[r.signal].explained:
+            best_per_signal[r.signal] = replace(r, explained=score)
+    regions = sorted(best_per_signal.values(), key=lambda r: -r.explained)
+    best = regions[0]
+    flagged = best.mask(values[best.signal])
+    if best.explained < MIN_EXPLAINED:
+        flagged = torch.zeros_like(flagged)
+    holds = (~best.mask(values[best.signal])).to(y.dtype).sqrt()
+    residual = y - design @ lstsq(design * holds.unsqueeze(-1), y * holds)
+    return regions, flagged, residual, best.explained
+
+
+def time_windows(t: torch.Tensor, flagged: torch.Tensor, residual: torch.Tensor, gap: int = 5,
+                 limit: int = 10) -> list[dict]:
+    """Runs of flagged rows (merging gaps up to ``gap`` rows), largest residual energy first."""
+    windows, start, last = [], None, None
+    for i in torch.nonzero(flagged).flatten().tolist():
+        if start is None:
+            start = last = i
+        elif i - last <= gap + 1:
+            last = i
+        else:
+            windows.append((start, last))
+            start = last = i
+    if start is not None:
+        windows.append((start, last))
+    energy = (residual**2).sum().clamp_min(torch.finfo(residual.dtype).tiny)
+    found = [{"start": float(t[a]), "stop": float(t[b]), "energy_share": float((residual[a:b + 1] ** 2).sum() / energy)}
+             for a, b in windows]
+    return sorted(found, key=lambda w: -w["energy_share"])[:limit]
+
+
+def _rule(name: str, kind: str, a: float) -> str:
+    shown = f"|{name}|" if kind.startswith("abs") else name
+    return f"{shown} {'>' if kind.endswith('gt') else '<'} {a:.4g}"
