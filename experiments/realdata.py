@@ -118,7 +118,7 @@ def run(case: str) -> None:
                                           speed if text == "q_dot" else 1.0)
                 print(f"    {law}: coefficient {-th * mass:.4g}, force at median speed {at_median:.4g} N")
     if config.adaptation.simulation.output:
-        runs = free_run_models(config, spec, models, path.parent)
+        runs = free_run_models(config, spec, models, path.parent, records=("validation",), steps=3)
         for record, rows in runs["free_run_rmse"].items():
             print(f"  free-run RMSE {record} ({', '.join(runs['outputs'])}): " + ", ".join(
                 f"{k} {v[0]:.5g}" for k, v in rows.items()))

@@ -91,6 +91,7 @@ class SimulationConfig(_Section):
         "estimate", description="initial states estimated by least squares, or taken from the data / initial_guess")
     initial_guess: dict[str, Number] = Field({}, description="initial values of states the data do not give")
     prefit_steps: int = Field(15, ge=0, description="Levenberg-Marquardt steps fitting theta and initial states first")
+    refit_steps: int = Field(0, ge=0, description="Levenberg-Marquardt steps on theta and initial states before every exponent step")
     relative_step: float = Field(1e-6, gt=0, description="relative finite-difference step for theta and initial states")
 
 

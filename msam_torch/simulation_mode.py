@@ -240,6 +240,7 @@ class SimulationData:
     method: str = "rk4"
     substeps: int = 1
     relative_step: float = 1e-6
+    refit_steps: int = 0  # Levenberg-Marquardt steps on theta and initial states before every exponent step
 
     @property
     def y(self) -> torch.Tensor:
@@ -252,7 +253,7 @@ class SimulationData:
     def output(self, gamma, choice, theta, theta_fixed, initial) -> torch.Tensor:
         """Simulated outputs for any leading batch shape: (..., O N)."""
         batch = gamma.shape[:-1]
-        flat = lambda v: v.expand(batch + v.shape[-1:]).reshape(-1, v.shape[-1])
+        flat = lambda v: v.expand(batch + v.shape[-1:]).flatten(0, len(batch) - 1)
         t = self.scale.shape[0]
         scale = self.scale.view((t,) + (1,) * (len(batch) - 1) + self.scale.shape[-1:]) if len(batch) > 1 else self.scale
         p = Parameters(flat(gamma), flat(choice), flat(theta), flat(theta_fixed), flat(scale))
@@ -310,15 +311,19 @@ class SimulationEvaluator:
         q, p = state.theta.shape[-1], state.theta_fixed.shape[-1]
         initial = _initial(selection, state)
         z = _packed(state, initial)
+        free = data.free.clone()
+        if options.theta == "fixed":
+            free[: q + p] = False
+        if data.refit_steps:  # theta and initial states refitted for the current exponents (variable projection by iteration)
+            z, yhat = fit_parameters(data, selection.choice(state), state.gamma, z, free, data.refit_steps)
+            y = selection.y
+            current = replace(current, yhat=yhat, fitness=torch.where(state.diverged, current.fitness, fitness(y, yhat)))
         jac = jacobians(data, selection.choice(state), state.gamma, z, options.dgamma)
         blown = ~_usable(current.yhat).all(-1, keepdim=True)  # (T, C, 1): its simulation left the float range
         eps = torch.where(blown, torch.zeros_like(current.yhat), selection.y - current.yhat)
         phi_scaled = structural_sensitivities(jac.gamma, jac.dm)
         phi_unscaled = structural_sensitivities(jac.gamma, torch.full_like(jac.dm, options.dgamma))
         phi_gamma = phi_scaled if options.scaling == "dm" else phi_unscaled
-        free = data.free.clone()
-        if options.theta == "fixed":
-            free[: q + p] = False
         phi = torch.where(blown.unsqueeze(-1), 0.0, torch.cat([phi_gamma, jac.z[..., free]], -1))
         delta = lstsq(phi, eps, options.damping, options.rcond)
         delta_gamma, delta_z = delta[..., :q], torch.zeros_like(z)
@@ -406,42 +411,40 @@ def jacobians(data: SimulationData, choice, gamma, z, dgamma: float, structural:
 
 
 def fit_parameters(data: SimulationData, choice, gamma, z, free: torch.Tensor, steps: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Levenberg-Marquardt on the ``free`` entries of z (T, 1, Z) for fixed exponents.
+    """Levenberg-Marquardt on the ``free`` entries of z (T, C, Z) for fixed exponents (T, C, Qa).
 
     Each step tries the dampings of :data:`PREFIT_DAMPING` together with their Jacobians in one
-    batched simulation and keeps, per trial, the best that lowers the sum of squares. Returns z and
-    the simulated output.
+    batched simulation and keeps, per candidate, the best that lowers the sum of squares. Returns z
+    and the simulated output (T, C, M).
     """
-    if steps == 0 or not bool(free.any()):
-        return z, data.output(gamma, choice, *_unpacked(z, gamma.shape[-1], z.shape[-1] - gamma.shape[-1] - data.initial.shape[-1]))
     q = gamma.shape[-1]
     p = z.shape[-1] - q - data.initial.shape[-1]
+    if steps == 0 or not bool(free.any()):
+        return z, data.output(gamma, choice, *_unpacked(z, q, p))
     fixed_free = replace(data, free=free)
     y = data.y.unsqueeze(1)
+    n = len(PREFIT_DAMPING)
 
-    def linearise(points):  # (T, L, Z) -> output (T, L, M), Jacobian (T, L, M, Zf)
-        g = gamma.expand(points.shape[:-1] + gamma.shape[-1:])
-        c = choice.expand(points.shape[:-1] + choice.shape[-1:])
-        jac = jacobians(fixed_free, c, g, points, 1.0, structural=False)
-        return jac.base, jac.z[..., free]
+    def linearise(points):  # (T, C, L, Z) -> output (T, C, L, M), Jacobian (T, C, L, M, Zf)
+        g = gamma.unsqueeze(-2).expand(points.shape[:-1] + (q,))
+        c = choice.unsqueeze(-2).expand(points.shape[:-1] + (q,))
+        jac = jacobians(fixed_free, c.flatten(1, 2), g.flatten(1, 2), points.flatten(1, 2), 1.0, structural=False)
+        return jac.base.unflatten(1, points.shape[1:3]), jac.z[..., free].unflatten(1, points.shape[1:3])
 
-    out, jz = linearise(z)
+    out, jz = (v.squeeze(2) for v in linearise(z.unsqueeze(-2)))
     sse = torch.where(_usable(out), (y - out) ** 2, torch.inf).sum(-1)
     for _ in range(steps):
         eps = torch.where(_usable(out), y - out, torch.zeros_like(out))
-        deltas = torch.stack([lstsq(jz, eps, damping) for damping in PREFIT_DAMPING], -2)  # (T, 1, L, Zf)
-        trial = z.unsqueeze(-2).repeat_interleave(len(PREFIT_DAMPING), -2)
+        deltas = torch.stack([lstsq(jz, eps, damping) for damping in PREFIT_DAMPING], -2)  # (T, C, L, Zf)
+        trial = z.unsqueeze(-2).repeat_interleave(n, -2)
         trial[..., free] = trial[..., free] + deltas
-        trial = trial.squeeze(1)  # (T, L, Z)
         out_t, jz_t = linearise(trial)
-        sse_t = torch.where(_usable(out_t), (y - out_t) ** 2, torch.inf).sum(-1)  # (T, L)
-        best = sse_t.argmin(-1)
-        rows = torch.arange(best.shape[0], device=best.device)
-        better = (sse_t[rows, best] < sse[:, 0]).view(-1, 1)
-        z = torch.where(better.unsqueeze(-1), trial[rows, best].unsqueeze(1), z)
-        out = torch.where(better.unsqueeze(-1), out_t[rows, best].unsqueeze(1), out)
-        jz = torch.where(better.unsqueeze(-1).unsqueeze(-1), jz_t[rows, best].unsqueeze(1), jz)
-        sse = torch.where(better, sse_t[rows, best].unsqueeze(1), sse)
+        sse_t = torch.where(_usable(out_t), (y.unsqueeze(-2) - out_t) ** 2, torch.inf).sum(-1)  # (T, C, L)
+        best_sse, best = sse_t.min(-1)
+        better = best_sse < sse
+        pick = lambda v: v.gather(2, best.view(best.shape + (1,) * (v.dim() - 2)).expand(v.shape[:2] + (1,) + v.shape[3:])).squeeze(2)
+        keep = lambda new, old: torch.where(better.view(better.shape + (1,) * (old.dim() - 2)), new, old)
+        z, out, jz, sse = keep(pick(trial), z), keep(pick(out_t), out), keep(pick(jz_t), jz), torch.where(better, best_sse, sse)
     return z, out
 
 
@@ -574,7 +577,7 @@ def prepare(config: Config, spec: ModelSpec, group: tuple[Equation, ...], parame
     free = torch.tensor([a.theta == "varpro"] * (q + p) + [sim.initial == "estimate"] * s, device=device)
     data = SimulationData(model, train, tuple(model.states.index(o) for o in outputs), train.guess.expand(t, -1),
                           torch.ones(t, len(model.functions), dtype=dtype, device=device), free, sim.method,
-                          sim.substeps, sim.relative_step)
+                          sim.substeps, sim.relative_step, sim.refit_steps)
     unadjusted = torch.full((t, 1, q), model.unadjusted, dtype=torch.long, device=device)
     gamma = theta.new_zeros(t, 1, q)
     z = torch.cat([theta, theta_fixed, data.initial], -1).unsqueeze(1)
@@ -653,7 +656,7 @@ def report(prepared: Prepared, fit) -> dict:
     scale = data.scale.expand(len(rows), -1)
     for name, record in (("train", data.record), ("validation", prepared.validation)):
         if record is not None:
-            simulated, _ = free_run(replace(data, scale=scale), record, *both)
+            simulated, _ = free_run(replace(data, scale=scale), record, *both, steps=3)
             out["free_run_rmse"][name] = {label: rmse(record, simulated[k]) for k, label in enumerate(rows)}
     return out
 
@@ -702,13 +705,14 @@ def equation_results(model: SystemModel, fit, prepared: Prepared, trial: int = 0
 
 
 def free_run_models(config: Config, spec: ModelSpec, models: dict[str, list], base_dir: Path | str,
-                    dtype=torch.float64) -> dict:
+                    records: tuple[str, ...] = ("train", "validation"), steps: int = 6, dtype=torch.float64) -> dict:
     """Free-run RMSE of several models of ``spec`` on the training and validation records.
 
     ``models`` maps a label to one entry per equation with ``adjustments`` (per component: the
     adjustment text, or None for an unadjusted or fixed component), ``exponents`` and ``theta`` in the
     data's units, e.g. :class:`~msam_torch.result.EquationResult`. Every model runs jointly (all
-    equations) under the measured inputs, with only its initial states fitted on each record.
+    equations) under the measured inputs, with only its initial states fitted (``steps``
+    Levenberg-Marquardt steps) on each of ``records``.
     Returns ``{"outputs": [...], "free_run_rmse": {record: {label: [rmse per output]}},
     "simulated": {record: {label: (O, N) list}}}``.
     """
@@ -736,8 +740,8 @@ def free_run_models(config: Config, spec: ModelSpec, models: dict[str, list], ba
                           sim.method, sim.substeps, sim.relative_step)
     out = {"outputs": list(outputs), "free_run_rmse": {}, "simulated": {}}
     for name, record in (("train", train), ("validation", validation)):
-        if record is not None:
-            simulated, _ = free_run(data, record, choice, gamma, theta, theta_fixed,
+        if record is not None and name in records:
+            simulated, _ = free_run(data, record, choice, gamma, theta, theta_fixed, steps,
                                     estimate_initial=sim.initial == "estimate")
             out["free_run_rmse"][name] = {label: rmse(record, simulated[k]) for k, label in enumerate(models)}
             out["simulated"][name] = {label: simulated[k].tolist() for k, label in enumerate(models)}
