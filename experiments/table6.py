@@ -1,9 +1,9 @@
 """Table 6: the IS model y_dot = alpha (e - y) on US macro data (statsmodels macrodata, the repo's
-copy in data/us_macro), trained on 1959-1989 and validated on 1990-2008: the parameter-tuned
+copy in msam_torch/datasets/us_macro), trained on 1959-1989 and validated on 1990-2008: the parameter-tuned
 original model beside the adapted models, and the paper's figures.
 
     PYTHONPATH=. python experiments/table6.py [configs/is_model.yaml] [--out DIR]
-    PYTHONPATH=. python experiments/table6.py --prepare   # (re)derive data/us_macro/is_income_expenditure.csv
+    PYTHONPATH=. python experiments/table6.py --prepare   # (re)derive msam_torch/datasets/us_macro/is_income_expenditure.csv
 
 Each model row is written to ``<out>/rows/<name>.json`` when done and reused by the next run.
 """
@@ -69,7 +69,7 @@ def main() -> int:
     set_threads(args.threads)
     config_path, out = Path(args.config), Path(args.out)
     if args.prepare:
-        print(f"wrote {prepare(ROOT / 'data/us_macro/macrodata.csv', ROOT / 'data/us_macro/is_income_expenditure.csv')}")
+        print(f"wrote {prepare(ROOT / 'msam_torch/datasets/us_macro/macrodata.csv', ROOT / 'msam_torch/datasets/us_macro/is_income_expenditure.csv')}")
         return 0
     started = time.perf_counter()
     config = load_config(config_path)
