@@ -107,3 +107,31 @@ def test_tuned_start_is_used_when_asked():
     assert a.theta_tuning["start"]["theta"] == pytest.approx(b.theta_tuning["start"]["theta"])
     assert b.start["sum_abs_error"] == pytest.approx(b.theta_tuning["start"]["sum_abs_error"])
     assert b.start_equation == b.theta_tuning["start"]["equation"] != a.start_equation
+
+
+def test_parquet_files_load_like_csv(tmp_path):
+    """The same record as CSV and as Parquet gives identical signals."""
+    import numpy as np
+    import pandas as pd
+
+    from msam_torch.config import load_config
+    from msam_torch.data import load_datasets
+    from msam_torch.spec import ModelSpec
+
+    t = np.linspace(0.0, 2.0, 201)
+    frame = pd.DataFrame({"time": t, "pos": np.sin(3 * t), "force": np.cos(t)})
+    frame.to_csv(tmp_path / "r.csv", index=False)
+    frame.to_parquet(tmp_path / "r.parquet")
+    model = {"states": ["x", "x_dot"], "inputs": ["u"], "parameters": {"k": 9.0},
+             "equations": [{"target": "x_ddot", "components": [{"term": "x", "theta": "-k"},
+                                                                {"term": "u", "theta": 1, "adjustable": False}],
+                            "adjustments": ["abs(x)"]}]}
+    loaded = []
+    for name in ("r.csv", "r.parquet"):
+        config = load_config({"model": model, "data": {"file": name, "time": "time", "derivatives": "savgol",
+                                                       "columns": {"x": "pos", "u": "force"}}})
+        train, _ = load_datasets(config.data, ModelSpec.from_config(config.model), tmp_path)
+        loaded.append(train.signals)
+    assert set(loaded[0]) == set(loaded[1]) >= {"x", "x_ddot", "u"}
+    for name in loaded[0]:
+        assert (loaded[0][name] == loaded[1][name]).all(), name
