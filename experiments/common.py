@@ -16,12 +16,9 @@ import time
 from pathlib import Path
 from typing import Callable, Optional, Union
 
-import pydantic
-import yaml
 from pydantic import BaseModel, ConfigDict, Field
 
-from msam_torch.config import Config, dump_config, load_config
-from msam_torch.errors import ConfigError
+from msam_torch.config import Config, dump_config, load_config, read_yaml, validate
 from msam_torch.protocol import MAX_ELEMENTS, Trial, TrialResult, run_trials
 from msam_torch.result import _finite, write_atomic
 
@@ -58,19 +55,7 @@ class ExperimentConfig(_Strict):
 
 
 def load_experiment(path: Union[str, Path]) -> ExperimentConfig:
-    path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError("", f"{path}: no such experiment config") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError("", f"{path}: malformed YAML: {exc}") from None
-    try:
-        return ExperimentConfig.model_validate(raw)
-    except pydantic.ValidationError as exc:
-        error = exc.errors()[0]
-        key = ".".join(str(p) for p in error["loc"])
-        raise ConfigError(key, f"{error['msg']} (in {path})") from None
+    return validate(ExperimentConfig, read_yaml(path, "experiment config"), str(path))
 
 
 def model_config(experiment: ExperimentConfig, config_path: Path, variant: str) -> Config:

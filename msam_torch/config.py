@@ -123,30 +123,39 @@ class Config(_Section):
     adaptation: AdaptationConfig = AdaptationConfig()
 
 
+def read_yaml(path: Union[str, Path], what: str = "config") -> dict:
+    """A YAML mapping from ``path``; unreadable or malformed files raise :class:`ConfigError`."""
+    path = Path(path)
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError("", f"{path}: no such {what} file") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError("", f"{path}: malformed YAML{_yaml_place(exc)}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError("", f"{path}: cannot read the {what}: {exc}") from None
+    if not isinstance(raw, dict):
+        raise ConfigError("", f"{path}: the top level must be a mapping")
+    return raw
+
+
+def validate(schema: type[BaseModel], raw: dict, origin: str):
+    """``schema.model_validate(raw)``; the first problem raises :class:`ConfigError` with its key path."""
+    try:
+        return schema.model_validate(raw)
+    except pydantic.ValidationError as exc:
+        error = exc.errors()[0]
+        key = ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in error["loc"]).replace(".[", "[")
+        raise ConfigError(key, f"{error['msg']} (in {origin})") from None
+
+
 def load_config(source: Union[str, Path, dict], overrides: list[str] = ()) -> Config:
     """Read a YAML file (or a dict), apply ``key.path=value`` overrides, validate."""
     if isinstance(source, dict):
         raw, origin = source, "config"
     else:
-        path = Path(source)
-        origin = str(path)
-        try:
-            raw = yaml.safe_load(path.read_text())
-        except FileNotFoundError:
-            raise ConfigError("", f"{path}: no such config file") from None
-        except yaml.YAMLError as exc:
-            raise ConfigError("", f"{path}: malformed YAML{_yaml_place(exc)}") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError("", f"{path}: cannot read the config: {exc}") from None
-        if not isinstance(raw, dict):
-            raise ConfigError("", f"{path}: the top level must be a mapping")
-    raw = _apply_overrides(raw, overrides)
-    try:
-        return Config.model_validate(raw)
-    except pydantic.ValidationError as exc:
-        error = exc.errors()[0]
-        key = ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in error["loc"]).replace(".[", "[")
-        raise ConfigError(key, f"{error['msg']} (in {origin})") from None
+        raw, origin = read_yaml(source), str(source)
+    return validate(Config, _apply_overrides(raw, overrides), origin)
 
 
 def _yaml_place(exc: yaml.YAMLError) -> str:
