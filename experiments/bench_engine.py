@@ -35,8 +35,6 @@ FEW_REPEATS_ABOVE = 10**7  # larger cells: 3 repeats
 
 def problem(candidates: int, samples: int):
     """EquationData, nominal theta (adjustable, fixed) and equation for a candidate count."""
-    import torch
-
     from msam_torch.candidates import EquationData
     from msam_torch.config import load_config
     from msam_torch.spec import ModelSpec

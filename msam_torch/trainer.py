@@ -17,9 +17,9 @@ from typing import Callable
 
 import torch
 
-from .candidates import EquationData, enumerate_choices, predict
+from .candidates import EquationData, enumerate_choices
 from .fitness import correlation, fitness, sum_abs_error
-from .step import State, StepOptions, evaluate, solve_theta, step
+from .step import State, StepOptions, evaluate, step
 
 
 @dataclass(frozen=True)

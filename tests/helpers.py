@@ -2,7 +2,6 @@
 from functools import lru_cache
 from pathlib import Path
 
-import torch
 
 from msam_torch.candidates import EquationData
 from msam_torch.config import load_config

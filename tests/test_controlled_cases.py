@@ -1,5 +1,4 @@
 """Acceptance on the controlled cases of Table 1 (exact derivative targets, 0 % parametric error)."""
-import pytest
 
 from msam_torch.api import adapt
 from tests.helpers import CONFIGS
