@@ -127,7 +127,9 @@ def write_markdown(report: GapReport, out: Path, plots: bool = True) -> Path:
                "|---|---|---|"]
         md += [f"| `{r['rule']}` | {100 * r['share']:.0f} % | {100 * r['explained']:.0f} % |" for r in g.where["regions"]]
         md += ["", "| time window | share of residual energy |", "|---|---|"]
-        md += [f"| {w['start']:.4g} .. {w['stop']:.4g} | {100 * w['energy_share']:.0f} % |" for w in g.where["time_windows"]]
+        md += [f"| {w['start']:.4g} .. {w['stop']:.4g} | {100 * w['energy_share']:.0f} % |" for w in g.where["time_windows"][:10]]
+        if len(g.where["time_windows"]) > 10:
+            md += ["", f"({len(g.where['time_windows']) - 10} more windows in gap_report.json)"]
         md += ["", "Components ranked:", "", "| component | best hypothesis | improvement |", "|---|---|---|"]
         md += [f"| `{c['component']}` | `{c['best_hypothesis']}` | {100 * c['improvement']:.1f} % |" for c in g.components]
         md += ["", "### Which: hypotheses by held-out RMSE", "", "| hypothesis | effect | exponent | held-out RMSE | improvement |",
