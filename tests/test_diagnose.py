@@ -156,3 +156,19 @@ def test_cli_reports_a_bad_file_without_traceback(tmp_path, capsys):
     (tmp_path / "c.yaml").write_text(json.dumps(config))
     assert main(["diagnose", str(tmp_path / "c.yaml")]) == 2
     assert "missing.csv" in capsys.readouterr().err
+
+
+def test_localise_finds_where_a_clearance_spring_engages():
+    from msam_torch.diagnose import localise
+
+    generator = torch.Generator().manual_seed(0)
+    x = 4 * torch.rand(1500, generator=generator, dtype=torch.float64) - 2
+    v = torch.randn(1500, generator=generator, dtype=torch.float64)
+    y = -4 * x - 0.5 * v - 6 * torch.sign(x) * torch.relu(x.abs() - 0.6)
+    y = y + 0.05 * torch.randn(1500, generator=generator, dtype=torch.float64)
+    regions, flagged, residual, explained = localise.localise(torch.stack([x, v], -1), y, {"x": x, "x_dot": v})
+    best = regions[0]
+    assert best.signal == "x" and best.kind == "abs_gt" and abs(best.value - 0.6) < 0.1
+    truth = x.abs() > 0.6
+    assert (flagged & truth).sum() / (flagged | truth).sum() > 0.9 and explained > 0.9
+    assert residual[x.abs() < 0.6].abs().max() < 0.3  # the starting structure holds inside the clearance

@@ -94,9 +94,8 @@ def localise(design: torch.Tensor, y: torch.Tensor, values: dict[str, torch.Tens
     return regions, flagged, residual, best.explained
 
 
-def time_windows(t: torch.Tensor, flagged: torch.Tensor, residual: torch.Tensor, gap: int = 5,
-                 limit: int = 10) -> list[dict]:
-    """Runs of flagged rows (merging gaps up to ``gap`` rows), largest residual energy first."""
+def time_windows(t: torch.Tensor, flagged: torch.Tensor, residual: torch.Tensor, gap: int = 1) -> list[dict]:
+    """Every run of flagged rows (merging gaps up to ``gap`` rows), largest residual energy first."""
     windows, start, last = [], None, None
     for i in torch.nonzero(flagged).flatten().tolist():
         if start is None:
@@ -111,7 +110,7 @@ def time_windows(t: torch.Tensor, flagged: torch.Tensor, residual: torch.Tensor,
     energy = (residual**2).sum().clamp_min(torch.finfo(residual.dtype).tiny)
     found = [{"start": float(t[a]), "stop": float(t[b]), "energy_share": float((residual[a:b + 1] ** 2).sum() / energy)}
              for a, b in windows]
-    return sorted(found, key=lambda w: -w["energy_share"])[:limit]
+    return sorted(found, key=lambda w: -w["energy_share"])
 
 
 def _rule(name: str, kind: str, a: float) -> str:

@@ -125,9 +125,11 @@ def write_markdown(report: GapReport, out: Path, plots: bool = True) -> Path:
         md += ["", "### Where", "", f"{100 * g.where['flagged_fraction']:.0f} % of the record flagged.", "",
                "| region (best rule per signal) | share of the record | squared residual removed by a separate fit |",
                "|---|---|---|"]
-        md += [f"| `{r['rule']}` | {100 * r['share']:.0f} % | {100 * r['explained']:.0f} % |" for r in g.where["regions"]]
+        md += [f"| `{_cell(r['rule'])}` | {100 * r['share']:.0f} % | {100 * r['explained']:.0f} % |" for r in g.where["regions"]]
         md += ["", "| time window | share of residual energy |", "|---|---|"]
-        md += [f"| {w['start']:.4g} .. {w['stop']:.4g} | {100 * w['energy_share']:.0f} % |" for w in g.where["time_windows"]]
+        md += [f"| {w['start']:.4g} .. {w['stop']:.4g} | {100 * w['energy_share']:.0f} % |" for w in g.where["time_windows"][:10]]
+        if len(g.where["time_windows"]) > 10:
+            md += ["", f"({len(g.where['time_windows']) - 10} more windows in gap_report.json)"]
         md += ["", "Components ranked:", "", "| component | best hypothesis | improvement |", "|---|---|---|"]
         md += [f"| `{c['component']}` | `{c['best_hypothesis']}` | {100 * c['improvement']:.1f} % |" for c in g.components]
         md += ["", "### Which: hypotheses by held-out RMSE", "", "| hypothesis | effect | exponent | held-out RMSE | improvement |",
@@ -165,6 +167,11 @@ def write_markdown(report: GapReport, out: Path, plots: bool = True) -> Path:
             md += [f"![free run {label}]({name})", ""]
     md += [f"_Computed in {report.seconds:.2f} s._", ""]
     return write_atomic(out / "report.md", "\n".join(md))
+
+
+def _cell(text: str) -> str:
+    """Escape the table separator inside a Markdown table cell."""
+    return text.replace("|", "\\|")
 
 
 def _plots(report: GapReport, out: Path) -> dict:
