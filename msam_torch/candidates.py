@@ -66,7 +66,11 @@ class EquationData:
 
     @classmethod
     def build(cls, equation: Equation, signals: Mapping[str, torch.Tensor], normalize: str = "none") -> "EquationData":
-        """Evaluate terms and functions on ``signals`` (each (N,) or (T, N))."""
+        """Evaluate terms and functions on ``signals`` (each (N,) or (T, N)).
+
+        ``normalize``: ``'none'``; ``'rms'`` divides every adjustment function and every adjustable
+        component by its RMS; ``'functions'`` divides the adjustment functions only (components and
+        theta stay in the data's units)."""
         values = {k: v if v.dim() == 2 else v.unsqueeze(0) for k, v in signals.items()}
         y = values[equation.target]
         shape = y.shape
@@ -83,12 +87,10 @@ class EquationData:
         magnitude = torch.tensor([a.is_magnitude for a in equation.adjustments], device=y.device)
         components = stack([terms[i] for i in equation.adjustable])
         rms = lambda v: torch.sqrt((v * v).mean(-2)).clamp_min(torch.finfo(v.dtype).tiny)
-        if normalize == "rms":
-            scale, component_scale = rms(f), rms(components)
-            components = components / component_scale.unsqueeze(-2)
-        else:
-            scale = torch.ones(f.shape[:1] + f.shape[-1:], dtype=f.dtype, device=f.device)
-            component_scale = torch.ones(components.shape[:1] + components.shape[-1:], dtype=f.dtype, device=f.device)
+        ones = lambda v: torch.ones(v.shape[:1] + v.shape[-1:], dtype=f.dtype, device=f.device)
+        scale = rms(f) if normalize in ("rms", "functions") else ones(f)
+        component_scale = rms(components) if normalize == "rms" else ones(components)
+        components = components / component_scale.unsqueeze(-2)
         log_f = torch.log((f.abs() / scale.unsqueeze(-2)).clamp_min(FLOOR))
         sign_f = torch.where(magnitude, torch.ones_like(f), torch.sign(f))
         return cls(

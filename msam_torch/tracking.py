@@ -14,9 +14,6 @@ import torch
 
 from .result import write_atomic
 
-MEASURES = ("fitness", "sum_abs_error", "rho", "mu", "cond_scaled", "cond_unscaled")
-
-
 class TensorBoardTracker:
     def __init__(self, log_dir: str | Path, max_candidates: int = 64):
         self.log_dir = Path(log_dir)

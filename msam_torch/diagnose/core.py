@@ -143,10 +143,8 @@ class Projection:
 def _weak_data(extended: Equation, signals: dict, tests: TestFunctions, scale: torch.Tensor | None = None,
                weights: torch.Tensor | None = None, jitter: torch.Tensor | None = None) -> EquationData:
     """Weak-form data of one equation; ``scale`` reuses the training normalisation of F."""
-    data = EquationData.build(extended, signals, "rms" if scale is None else "none")
-    if scale is None:  # the diagnosis normalises F only; components (and theta) stay in data units
-        data = replace(data, components=data.components * data.component_scale.unsqueeze(-2), component_scale=None)
-    else:
+    data = EquationData.build(extended, signals, "functions" if scale is None else "none")
+    if scale is not None:
         data = replace(data, log_f=(data.log_f - scale.log()).clamp_min(torch.log(torch.tensor(FLOOR))),
                        scale=scale.unsqueeze(0))
     source, order = _target_source(extended, signals)

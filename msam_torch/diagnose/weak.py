@@ -50,10 +50,6 @@ class TestFunctions:
     def count(self, n: int) -> int:
         return (n - (2 * self.half_width + 1)) // self.stride + 1
 
-    def centres(self, n: int) -> torch.Tensor:
-        """Sample index of every test function's centre (M,)."""
-        return self.half_width + self.stride * torch.arange(self.count(n))
-
     def integrate(self, values: torch.Tensor, order: int = 0) -> torch.Tensor:
         """``int phi_m^(order) v dt`` along the sample axis -2: (..., N, Q) -> (..., M, Q)."""
         windows = values.unfold(-2, self.kernels.shape[-1], self.stride)  # (..., M, Q, L)
