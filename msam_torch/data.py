@@ -11,6 +11,7 @@ line for CSV files, the 0-based row otherwise) and the config key.
 from __future__ import annotations
 
 import difflib
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Union
@@ -287,10 +288,16 @@ def check_variation(spec: ModelSpec, signals: Mapping[str, torch.Tensor], source
                                 "cannot be identified")
 
 
+@functools.lru_cache(maxsize=8)
+def _simulation(name: str) -> dict[str, np.ndarray]:
+    """The noise-free simulation of a named system (computed once per process)."""
+    return {k: v.numpy() for k, v in simulate(get_system(name), dtype=torch.float64).items()}
+
+
 def simulated_measurements(config: DataConfig) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """A controlled case: every simulated signal, and what its sensors record (with noise)."""
     system = get_system(config.system)
-    simulated = {k: v.numpy() for k, v in simulate(system, dtype=torch.float64).items()}
+    simulated = {k: v.copy() for k, v in _simulation(config.system).items()}
     rng = np.random.default_rng(config.seed)
     measured = {}
     for name in system.measured:

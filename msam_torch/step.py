@@ -56,6 +56,7 @@ class Evaluation:
     sum_abs_error: torch.Tensor
     rho: torch.Tensor
     initial: torch.Tensor | None = None  # (T, C, S) initial states simulated from (simulation mode)
+    design_gram: torch.Tensor | None = None  # D^T D of [cols, fixed components] (theta re-solved)
 
 
 @dataclass(frozen=True)
@@ -100,17 +101,47 @@ def solve_normal(gram: torch.Tensor, rhs: torch.Tensor, damping: float = 0.0, rc
     return torch.where(finite.unsqueeze(-1) if many else finite, x, torch.nan)
 
 
-def design_matrix(selection: Selection, cols: torch.Tensor) -> torch.Tensor:
-    """The columns of every component, adjustable then fixed: (..., N, Q + P)."""
+def _fixed_times(selection: Selection, m: torch.Tensor) -> torch.Tensor:
+    """``F^T m`` for the fixed components ``F`` and ``m`` (..., C, N, K): (..., C, P, K)."""
+    return selection.fixed_components.mT @ m
+
+
+def design_gram(selection: Selection, cols: torch.Tensor) -> torch.Tensor:
+    """``D^T D`` of the design ``D = [cols, fixed components]`` (..., Q + P, Q + P), assembled
+    from its blocks so that ``D`` (the fixed columns copied for every candidate) is never formed."""
+    gram = cols.mT @ cols
     if not selection.fixed_components.shape[-1]:
-        return cols
-    return torch.cat([cols, selection.fixed_components.expand(cols.shape[:-1] + (-1,))], -1)
+        return gram
+    cross = _fixed_times(selection, cols)  # (..., P, Q)
+    fixed = selection.fixed_components.mT @ selection.fixed_components
+    fixed = fixed.expand(cross.shape[:-2] + fixed.shape[-2:])
+    return torch.cat([torch.cat([gram, cross.mT], -1), torch.cat([cross, fixed], -1)], -2)
 
 
-def solve_theta(selection: Selection, cols: torch.Tensor, rcond: float = 1e-12):
-    """Theta of every component by linear least squares for fixed exponents."""
-    design = design_matrix(selection, cols)
-    solution = solve_normal(design.mT @ design, (design.mT @ selection.y.unsqueeze(-1)).squeeze(-1), rcond=rcond)
+def design_transpose_times(selection: Selection, cols: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
+    """``D^T m`` for ``m`` (..., N, K): (..., Q + P, K)."""
+    top = cols.mT @ m
+    if not selection.fixed_components.shape[-1]:
+        return top
+    fixed = _fixed_times(selection, m)
+    return torch.cat([top, fixed.expand(top.shape[:-2] + fixed.shape[-2:])], -2)
+
+
+def design_times(selection: Selection, cols: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
+    """``D c`` for coefficients (..., Q + P, K): (..., N, K)."""
+    q = cols.shape[-1]
+    out = cols @ coefficients[..., :q, :]
+    if selection.fixed_components.shape[-1]:
+        out = out + selection.fixed_components @ coefficients[..., q:, :]
+    return out
+
+
+def solve_theta(selection: Selection, cols: torch.Tensor, rcond: float = 1e-12, gram: torch.Tensor | None = None):
+    """Theta of every component by linear least squares for fixed exponents (``gram``: ``D^T D``
+    when already known)."""
+    gram = design_gram(selection, cols) if gram is None else gram
+    rhs = design_transpose_times(selection, cols, selection.y.unsqueeze(-1)).squeeze(-1)
+    solution = solve_normal(gram, rhs, rcond=rcond)
     q = cols.shape[-1]
     return solution[..., :q], solution[..., q:]
 
@@ -118,13 +149,14 @@ def solve_theta(selection: Selection, cols: torch.Tensor, rcond: float = 1e-12):
 def evaluate(selection: Selection, state: State, options: StepOptions) -> Evaluation:
     """Columns, output and fitness of ``state`` (theta re-solved first under 'varpro')."""
     cols = columns(selection, state.gamma)
-    theta, theta_fixed = state.theta, state.theta_fixed
+    theta, theta_fixed, gram = state.theta, state.theta_fixed, None
     if options.theta == "varpro":
-        theta, theta_fixed = solve_theta(selection, cols, options.rcond)
+        gram = design_gram(selection, cols)
+        theta, theta_fixed = solve_theta(selection, cols, options.rcond, gram)
     yhat = predict(selection, cols, theta, theta_fixed)
     score, error, rho = scores(selection.y, yhat)
     score = torch.where(state.diverged, torch.full_like(score, -torch.inf), score)
-    return Evaluation(cols, yhat, theta, theta_fixed, score, error, rho)
+    return Evaluation(cols, yhat, theta, theta_fixed, score, error, rho, design_gram=gram)
 
 
 def step(selection: Selection, state: State, current: Evaluation, options: StepOptions,
@@ -145,9 +177,11 @@ def step(selection: Selection, state: State, current: Evaluation, options: StepO
     dm = perturbation_magnitude_from_change(current.cols, change)
     theta = current.theta
     if options.theta == "varpro":  # Kaufman: project the sensitivities off the span of the columns
-        design = design_matrix(selection, current.cols)
+        cols = current.cols
+        design = design_gram(selection, cols) if current.design_gram is None else current.design_gram
         sens = change * theta.unsqueeze(-2)
-        sens = sens - design @ solve_normal(design.mT @ design, design.mT @ sens, rcond=options.rcond)
+        projection = solve_normal(design, design_transpose_times(selection, cols, sens), rcond=options.rcond)
+        sens = sens - design_times(selection, cols, projection)
         gram = sens.mT @ sens
         rhs = (sens.mT @ eps.unsqueeze(-1)).squeeze(-1)
         fitted = lambda x: (sens @ x.unsqueeze(-1)).squeeze(-1)
