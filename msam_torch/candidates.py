@@ -148,7 +148,7 @@ def columns(selection: Selection, gamma: torch.Tensor) -> torch.Tensor:
     mapped by ``selection.project`` when one is set.
 
     The same values as ``signed_components * power(log_f, gamma)``, computed in one buffer."""
-    value = gamma.unsqueeze(-2) * selection.log_f
+    value = (gamma.unsqueeze(-1) * selection.log_f.mT).mT  # broadcast along the stored sample axis
     cols = value.clamp_(max=MAX_LOG).exp_().mul_(selection.signed_components)
     return cols if selection.project is None else selection.project(cols)
 

@@ -38,8 +38,11 @@ def perturbation_magnitude(cols: torch.Tensor, cols_perturbed: torch.Tensor) -> 
 
 def perturbation_magnitude_from_change(cols: torch.Tensor, change: torch.Tensor) -> torch.Tensor:
     """Eq. 15 from the columns and their change ``S(Gamma + dgamma e_i) - S`` (column i alone)."""
-    numerator = change.abs().sum(-2)
-    denominator = (cols * cols).sum(-1).sqrt_().sum(-1, keepdim=True)
+    numerator = torch.linalg.vector_norm(change, 1, dim=-2)  # sum_t |change|, one pass
+    squares = cols.new_zeros(cols.shape[:-1])  # ||S(t)||^2 accumulated column by column: no (..., N, Q) temporary
+    for column in cols.unbind(-1):
+        squares.addcmul_(column, column)
+    denominator = squares.sqrt_().sum(-1, keepdim=True)
     return numerator / denominator.clamp_min(torch.finfo(cols.dtype).tiny)
 
 
