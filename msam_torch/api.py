@@ -153,7 +153,7 @@ def equation_result(equation: Equation, fit: Fit, theta: torch.Tensor, scale: to
                 "exponents": fit.ranking_gamma[trial, c].tolist(),
                 "diverged": bool(fit.diverged[trial, c])} for c in order]
     pick = lambda d: {k: float(v[trial]) for k, v in d.items()}
-    start_terms = [c.term.text for c in equation.components]
+    start_terms = [format_component(equation, i, None, None) for i in range(len(equation.components))]
     start_theta = theta.tolist()
     extra = {}
     if tuning is not None:

@@ -21,6 +21,7 @@ import torch
 
 from ..candidates import EquationData, Selection, columns, predict
 from ..expressions import parse
+from ..result import format_component
 from ..spec import Equation
 from ..step import State, StepOptions, evaluate, step
 
@@ -40,11 +41,11 @@ class Hypothesis:
     def label(self, equation: Equation) -> str:
         if self.kind == "retuned":
             return "starting model, theta re-fitted"
-        term = equation.components[self.component].term.text
+        term = format_component(equation, self.component, None, None)
         f = equation.adjustments[self.function].text
         if self.kind == "multiplicative":
-            return f"{term} -> {term}*{f}^g"
-        return f"{term} + {term}*{f}^g"
+            return f"{term} -> {term}*{f}^gamma"
+        return f"{term} + {term}*{f}^gamma"
 
 
 def extended_equation(equation: Equation) -> Equation:

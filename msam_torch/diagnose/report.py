@@ -81,11 +81,17 @@ class GapReport:
                              f"bootstrap wins {100 * c['win_frequency']:.0f} % of {c['bootstrap_trials']}, "
                              f"margin {100 * c['margin']:.1f} % to {c['runner_up']}")
             lines.append(f"  starting: {g.start_equation}")
+            lines.append(f"  theta re-fitted: {g.retuned_equation}")
             lines.append(f"  adapted:  {g.adapted_equation}")
             if g.where["flagged_fraction"] > 0:
                 r = g.where["regions"][0]
                 lines.append(f"  the starting model fails where {r['rule']} ({100 * r['share']:.0f} % of the record; "
                              f"a separate fit there removes {100 * r['explained']:.0f} % of the squared residual)")
+        for label, targets in self.measures.get("one_step", {}).items():
+            for target, m in targets.items():
+                lines.append(f"one-step sum|eps| of {target} ({label}): start {m['start']['sum_abs_error']:.4g}, "
+                             f"theta re-fitted {m['retuned']['sum_abs_error']:.4g}, "
+                             f"adapted {m['adapted']['sum_abs_error']:.4g}")
         for label, entry in self.measures.get("free_run", {}).items():
             n = entry["nrmse"]
             closed = entry["gap_closed"]
