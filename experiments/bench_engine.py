@@ -4,10 +4,11 @@
    4096 candidates at N = 1e3, 1e4, 1e5 samples, batched (cache-sized chunks of candidates, run one
    after another as the Trainer does; the step time is the sum over chunks of the r-th repeat) vs the sequential reference path (one Candidate module at a time, torch.func
    sensitivities; measured on a few candidates and scaled to all), their ratio, and peak memory;
-2. 4096 candidates at N = 1e4 for 15 round-robin steps (wall time, peak memory);
+2. 4096 candidates at N = 1e4 for 15 round-robin steps (wall time, peak memory), in one process
+   and sharded over ``--ranks`` processes (torch.distributed, as ``msam_torch.distributed``);
 3. wall time of each table protocol (Tables 2-4, Figure 5; the batched tensor programs).
 
-    PYTHONPATH=. python experiments/bench_engine.py [--threads 1] [--repeats 7] [--skip-tables]
+    PYTHONPATH=. python experiments/bench_engine.py [--threads 1] [--ranks 2] [--repeats 7] [--skip-tables]
 
 Each cell runs in its own process so that its peak resident memory (ru_maxrss, including the
 ~0.35 GB of the Python + torch runtime) is its own. Timings on a shared machine vary: every step
@@ -103,24 +104,36 @@ def cell(candidates: int, samples: int, repeats: int, sequential: int) -> dict:
 
 
 def long_run(candidates: int, samples: int, steps: int) -> dict:
-    """Stage 1 of Algorithm 1 (Trainer.round_robin) for ``steps`` steps: wall time, peak memory."""
+    """Stage 1 of Algorithm 1 for ``steps`` steps: wall time, peak memory. Under torchrun the
+    candidates are sharded over the ranks (:class:`msam_torch.distributed.ShardedTrainer`); the wall
+    time is the slowest rank's, CPU time and peak memory the sum over ranks."""
     import torch
+    import torch.distributed as dist
 
     from msam_torch.candidates import enumerate_choices
+    from msam_torch.distributed import ShardedTrainer, init_process_group
     from msam_torch.protocol import chunk_size
     from msam_torch.step import StepOptions
-    from msam_torch.trainer import Trainer
 
+    joined = init_process_group("cpu")
     data, theta, theta_fixed, _ = problem(candidates, samples)
     q = theta.shape[0]
-    trainer = Trainer(StepOptions(), steps, 0, chunk_size(1, samples, q))
+    trainer = ShardedTrainer(StepOptions(), steps, 0, chunk_size(1, samples, q))
     choices = enumerate_choices(data.log_f.shape[-1], q)
+    if joined:
+        dist.barrier()
     t0, c0 = time.perf_counter(), time.process_time()
     fitness, _, _ = trainer.round_robin(data, theta.unsqueeze(0), theta_fixed.unsqueeze(0),
                                         torch.zeros(q, dtype=torch.float64), choices)
-    return {"candidates": candidates, "samples": samples, "steps": steps, "wall_s": time.perf_counter() - t0,
-            "cpu_s": time.process_time() - c0, "finite": int(torch.isfinite(fitness).sum()),
-            "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20}
+    mine = [time.perf_counter() - t0, time.process_time() - c0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20]
+    ranks = [mine]
+    if joined:
+        ranks = [None] * dist.get_world_size()
+        dist.all_gather_object(ranks, mine)
+        dist.destroy_process_group()
+    return {"candidates": candidates, "samples": samples, "steps": steps, "ranks": len(ranks),
+            "wall_s": max(r[0] for r in ranks), "cpu_s": sum(r[1] for r in ranks),
+            "finite": int(torch.isfinite(fitness).sum()), "peak_rss_gb": sum(r[2] for r in ranks)}
 
 
 def tables() -> list[dict]:
@@ -154,11 +167,13 @@ def child(args) -> None:
         out = long_run(args.long[0], args.long[1], args.long[2])
     else:
         out = {"tables": tables(), "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20}
-    print("RESULT " + json.dumps(out))
+    if os.environ.get("RANK", "0") == "0":  # under torchrun: every rank holds the gathered figures
+        print("RESULT " + json.dumps(out))
 
 
-def spawn(args, *extra: str) -> dict | None:
-    command = [sys.executable, __file__, "--threads", str(args.threads), "--repeats", str(args.repeats),
+def spawn(args, *extra: str, ranks: int = 1) -> dict | None:
+    launcher = ["-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={ranks}"] if ranks > 1 else []
+    command = [sys.executable, *launcher, __file__, "--threads", str(args.threads), "--repeats", str(args.repeats),
                "--sequential", str(args.sequential), *extra]
     env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": str(args.threads)}
     done = subprocess.run(command, env=env, capture_output=True, text=True)
@@ -174,6 +189,7 @@ def main() -> int:
     parser.add_argument("--threads", type=int, default=1, help="intra-op threads per process (1: fastest on a shared machine)")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--sequential", type=int, default=4, help="candidates timed on the sequential path")
+    parser.add_argument("--ranks", type=int, default=os.cpu_count(), help="processes for the sharded 4096-candidate run")
     parser.add_argument("--skip-tables", action="store_true")
     parser.add_argument("--all", action="store_true", help="also the cells above 1e9 values per step")
     parser.add_argument("--cell", type=int, nargs=2, help=argparse.SUPPRESS)
@@ -199,11 +215,13 @@ def main() -> int:
                 print(f"{candidates:>5} {samples:>7} {r['batched_ms']:>11.3f} {r['batched_min_ms']:>8.3f} "
                       f"{r['batched_cpu_ms']:>8.3f} {r['sequential_ms']:>14.1f} {r['ratio']:>7.1f} {r['peak_rss_gb']:>8.2f}"
                       f"   (sequential timed on {r['sequential_measured_on']}, chunk {r['chunk']})", flush=True)
-    print("\n2. 4096 candidates, N = 10000, 15 round-robin steps (Trainer.round_robin)")
-    r = spawn(args, "--long", "4096", "10000", "15")
-    if r:
-        print(f"   wall {r['wall_s']:.1f} s, cpu {r['cpu_s']:.1f} s, peak RSS {r['peak_rss_gb']:.2f} GB, "
-              f"{r['finite']} candidates with finite fitness", flush=True)
+    print("\n2. 4096 candidates, N = 10000, 15 round-robin steps (Trainer.round_robin; sharded over ranks "
+          "by torch.distributed, gloo, one process per rank)")
+    for ranks in sorted({1, args.ranks}):
+        r = spawn(args, "--long", "4096", "10000", "15", ranks=ranks)
+        if r:
+            print(f"   {r['ranks']} rank(s) x {args.threads} thread(s): wall {r['wall_s']:.1f} s, cpu {r['cpu_s']:.1f} s, "
+                  f"peak RSS {r['peak_rss_gb']:.2f} GB (all ranks), {r['finite']} candidates with finite fitness", flush=True)
     if not args.skip_tables:
         print("\n3. table protocols (batched tensor programs, no file output)")
         r = spawn(args, "--tables-only")
