@@ -79,7 +79,7 @@ class GapReport:
                 lines.append(f"  best: {g.hypothesis} ({g.effect}), exponent {g.exponent:.3f}{named}; "
                              f"held-out RMSE -{100 * g.improvement['relative']:.1f} % vs theta re-fitted; "
                              f"bootstrap wins {100 * c['win_frequency']:.0f} % of {c['bootstrap_trials']}, "
-                             f"margin {100 * c['margin']:.1f} % to {c['runner_up']}")
+                             f"{_margin(c)}")
             lines.append(f"  starting: {g.start_equation}")
             lines.append(f"  theta re-fitted: {g.retuned_equation}")
             lines.append(f"  adapted:  {g.adapted_equation}")
@@ -126,8 +126,8 @@ def write_markdown(report: GapReport, out: Path, plots: bool = True) -> Path:
             c = g.confidence
             md += [f"- which: {g.effect} ({g.hypothesis}, exponent {g.exponent:.3f})",
                    f"- confidence: wins {100 * c['win_frequency']:.0f} % of {c['bootstrap_trials']} bootstrap trials "
-                   f"(time blocks and noise); margin {100 * c['margin']:.1f} % held-out RMSE to the runner-up "
-                   f"({c['runner_up']}); residual structure left {100 * g.structure_left:.0f} %"]
+                   f"(time blocks and noise); {_margin(c)} (held-out RMSE); residual structure left "
+                   f"{100 * g.structure_left:.0f} %"]
         md += ["", "### Where", "", f"{100 * g.where['flagged_fraction']:.0f} % of the record flagged.", "",
                "| region (best rule per signal) | share of the record | squared residual removed by a separate fit |",
                "|---|---|---|"]
@@ -220,6 +220,13 @@ def _plots(report: GapReport, out: Path) -> dict:
             axes[0, 0].legend(fontsize=7, ncol=4), axes[-1, 0].set_xlabel("t")
             names[f"free_run_{label}"] = _save(fig, out, f"free_run_{label}.png")
     return names
+
+
+def _margin(confidence: dict) -> str:
+    """The held-out RMSE margin to the best hypothesis with another name, if there is one."""
+    if confidence["runner_up"] is None:
+        return "no competing hypothesis with another name"
+    return f"margin {100 * confidence['margin']:.1f} % to {confidence['runner_up']}"
 
 
 def _save(fig, out: Path, name: str) -> str:
