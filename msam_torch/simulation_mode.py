@@ -27,6 +27,7 @@ least-squares parameters (theta, theta_fixed, initial states).
 from __future__ import annotations
 
 import itertools
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -46,6 +47,7 @@ from .step import Evaluation, State, StepOptions, StepResult, advance, lstsq, st
 from .trainer import measures
 
 PREFIT_DAMPING = (0.0, 1e-4, 1e-2, 1.0)  # Levenberg-Marquardt dampings tried at once
+SERIAL_ELEMENTS = 32768  # batches of fewer state values are simulated on one thread (torch's grain size)
 
 
 @dataclass(frozen=True)
@@ -221,8 +223,24 @@ def simulate(model: SystemModel, record: Record, p: Parameters, x0: torch.Tensor
         values = {"t": t, **dict(zip(model.states, x.unbind(-1))), **dict(zip(model.external, lookup[key]))}
         return rates(values, x)
 
-    trajectory = odeint(func, x0, record.t, method=method, options={"step_size": step})
+    with _single_thread(x0.numel() < SERIAL_ELEMENTS and x0.device.type == "cpu"):
+        trajectory = odeint(func, x0, record.t, method=method, options={"step_size": step})
     return trajectory.movedim(0, -2)
+
+
+@contextmanager
+def _single_thread(serial: bool):
+    """Run a fixed-step simulation of a small batch on one CPU thread: its thousands of tiny
+    per-stage operations gain nothing from intra-op threads and lose much to their
+    synchronisation (tenfold when the other cores are busy). The thread count is restored."""
+    threads = torch.get_num_threads()
+    if serial and threads > 1:
+        torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        if torch.get_num_threads() != threads:
+            torch.set_num_threads(threads)
 
 
 @dataclass(frozen=True)
