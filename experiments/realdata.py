@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -20,6 +21,7 @@ from msam_torch.api import adapt
 from msam_torch.candidates import EquationData
 from msam_torch.config import load_config
 from msam_torch.data import load_datasets
+from msam_torch.diagnose.catalogue import CATALOGUE, name_effect
 from msam_torch.result import EquationResult
 from msam_torch.simulation_mode import free_run_models
 from msam_torch.spec import ModelSpec
@@ -40,19 +42,52 @@ def retuned_start(equation, data: EquationData) -> EquationResult:
     return EquationResult(equation.target, "", "", none, none, theta, {}, {}, [], 0)
 
 
-def one_step(equation, entry, signals: dict) -> torch.Tensor:
-    """The modelled derivative of an entry (adjustments, exponents, theta in data units): (N,)."""
+def columns(equation, entry, signals: dict) -> torch.Tensor:
+    """The adjusted components of an entry (adjustments and exponents, Eq. 9) without theta: (N, C)."""
     functions = {f.text: f for f in equation.adjustments}
-    total = torch.zeros_like(signals[equation.target])
+    target = signals[equation.target]
+    cols = []
     for i, component in enumerate(equation.components):
-        term = torch.as_tensor(component.term(signals), dtype=total.dtype).expand_as(total)
+        term = torch.as_tensor(component.term(signals), dtype=target.dtype).expand_as(target)
         if entry.adjustments[i] is not None:
             function = functions[entry.adjustments[i]]
             f = function(signals)
             magnitude = f.abs().clamp_min(1e-300) ** entry.exponents[i]
             term = term * (magnitude if function.is_magnitude else torch.sign(f) * magnitude)
-        total = total + entry.theta[i] * term
-    return total
+        cols.append(term)
+    return torch.stack(cols, -1)
+
+
+def one_step(equation, entry, signals: dict) -> torch.Tensor:
+    """The modelled derivative of an entry (adjustments, exponents, theta in data units): (N,)."""
+    return columns(equation, entry, signals) @ torch.as_tensor(entry.theta, dtype=signals[equation.target].dtype)
+
+
+def named_laws(equation, entry, starting: torch.Tensor) -> list[tuple[int, str, float]]:
+    """(component, catalogue name, the name's exponent) of each adjusted component of ``entry``
+    whose exponent falls in a catalogue interval (msam_torch.diagnose.catalogue); the name's
+    exponent is the interval's centre (Coulomb friction: -1, the sign of the rate); ``starting``:
+    the nominal theta (Q,), which says hardening or softening."""
+    texts = [f.text for f in equation.adjustments]
+    laws = []
+    for i, (a, g) in enumerate(zip(entry.adjustments, entry.exponents)):
+        if a is None:
+            continue
+        name = name_effect(equation, i, texts.index(a), g, entry.theta[i], float(starting[i]))
+        matches = [e for e in CATALOGUE if name.endswith(e.name)]
+        if matches:
+            laws.append((i, name, (matches[0].low + matches[0].high) / 2))
+    return laws
+
+
+def retuned_at(equation, entry, signals: dict, component: int, exponent: float) -> EquationResult:
+    """``entry`` with one exponent set to ``exponent`` and every theta re-estimated by linear least
+    squares (the theta re-estimation of msam_torch.tuning, on the same signals)."""
+    exponents = list(entry.exponents)
+    exponents[component] = exponent
+    moved = replace(entry, exponents=exponents)
+    theta = lstsq(columns(equation, moved, signals), signals[equation.target])
+    return replace(moved, theta=[float(v) for v in theta])
 
 
 def errors(y, yhat) -> dict:
@@ -117,6 +152,14 @@ def run(case: str) -> None:
                 at_median = -th * mass * (speed ** (1 + g) if text == "q_dot" and a == "abs(q_dot)" else
                                           speed if text == "q_dot" else 1.0)
                 print(f"    {law}: coefficient {-th * mass:.4g}, force at median speed {at_median:.4g} N")
+            for i, name, exponent in named_laws(equation, eq, spec.theta(equation)):
+                named = retuned_at(equation, eq, train.signals, i, exponent)
+                m = 1.0 / named.theta[texts.index("tau")]
+                held = "" if validation is None else \
+                    f", validation {100 * force_error(equation, named, validation.signals, 'tau'):.2f} %"
+                print(f"  {name}: at its catalogue exponent {exponent:g}, theta re-estimated on the training record: "
+                      f"magnitude {-named.theta[i] * m:.4g} N, M = {m:.2f} kg, relative force error train "
+                      f"{100 * force_error(equation, named, train.signals, 'tau'):.2f} %{held}")
     if config.adaptation.simulation.output:
         runs = free_run_models(config, spec, models, path.parent, records=("validation",), steps=3)
         for record, rows in runs["free_run_rmse"].items():

@@ -104,13 +104,18 @@ class EquationData:
         )
 
     def select(self, choice: torch.Tensor) -> "Selection":
-        """Gather each candidate's functions; ``choice`` is (C, Q) or per trial (T, C, Q)."""
-        t, n, _ = self.log_f.shape
+        """Gather each candidate's functions; ``choice`` is (C, Q) or per trial (T, C, Q).
+
+        The (T, C, N, Q) tensors are stored sample-axis last in memory (views of (T, C, Q, N)), so
+        the elementwise passes, the sums over samples and the Gram products of a step run along
+        contiguous memory; the values are the same in either layout."""
+        t, n, f = self.log_f.shape
         index = choice.expand((t,) + choice.shape[-2:]) if choice.dim() == 2 else choice
         c, q = index.shape[-2:]
-        gather = lambda values: values.unsqueeze(1).expand(t, c, n, -1).gather(-1, index.unsqueeze(2).expand(t, c, n, q))
-        signed = self.components.unsqueeze(1) * gather(self.sign_f)
-        return Selection(self.y.unsqueeze(1), signed, gather(self.log_f), self.fixed_components.unsqueeze(1),
+        rows = index.unsqueeze(-1).expand(t, c, q, n)
+        gather = lambda values: values.mT.unsqueeze(1).expand(t, c, f, n).gather(2, rows)  # (T, C, Q, N)
+        signed = self.components.mT.contiguous().unsqueeze(1) * gather(self.sign_f)
+        return Selection(self.y.unsqueeze(1), signed.mT, gather(self.log_f).mT, self.fixed_components.unsqueeze(1),
                          self.project)
 
 
@@ -150,7 +155,7 @@ def columns(selection: Selection, gamma: torch.Tensor) -> torch.Tensor:
 
 def predict(selection: Selection, cols: torch.Tensor, theta: torch.Tensor, theta_fixed: torch.Tensor) -> torch.Tensor:
     """``yhat = sum_i theta_i M_i f_i^gamma_i + sum_j theta_j M_j`` (Eq. 6, 9): (T, C, N)."""
-    yhat = (cols @ theta.unsqueeze(-1)).squeeze(-1)
+    yhat = (theta.unsqueeze(-2) @ cols.mT).squeeze(-2)  # row form: cols are stored sample-axis last
     if theta_fixed.shape[-1]:
         yhat = yhat + torch.einsum("...np,...cp->...cn", selection.fixed_components.squeeze(-3), theta_fixed)
     return yhat

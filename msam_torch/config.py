@@ -69,11 +69,13 @@ class DataConfig(_Section):
     parametric_error: float = Field(0.0, ge=0, description="total relative error of the nominal parameters")
     noise: float = Field(0.0, ge=0, description="simulated measurement noise, as a fraction of each signal's std")
     seed: int = 0
-    derivatives: Literal["auto", "exact", "savgol", "spline", "loess", "finite_difference"] = Field(
+    derivatives: Literal["auto", "exact", "savgol", "spline", "loess", "finite_difference", "butterworth"] = Field(
         "auto", description="how unmeasured derivatives are estimated; 'auto': exact for a noise-free simulated "
                             "system, else savgol; 'exact': every signal the model reads is given")
     window: Optional[int] = Field(None, ge=3, description="derivative estimator window in samples "
                                                           "(default: chosen from the noise floor)")
+    cutoff: Optional[float] = Field(None, gt=0, description="butterworth cut-off frequency in cycles per time unit "
+                                                            "(Hz for seconds; default: the noise floor)")
     resample: bool = Field(False, description="interpolate irregularly sampled data onto a uniform grid")
 
 

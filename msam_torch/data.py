@@ -11,6 +11,7 @@ line for CSV files, the 0-based row otherwise) and the config key.
 from __future__ import annotations
 
 import difflib
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Union
@@ -53,6 +54,8 @@ def load_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str = ".
     if config.derivatives == "auto":
         exact = frame is None and config.system is not None and config.noise == 0
         config = config.model_copy(update={"derivatives": "exact" if exact else "savgol"})
+    if config.cutoff is not None and config.derivatives != "butterworth":
+        raise ConfigError("data.cutoff", f"a cut-off applies to derivatives: butterworth, not {config.derivatives!r}")
     if frame is None and config.system is not None:
         return simulated_dataset(config, spec, dtype), None
     base_dir = Path(base_dir)
@@ -246,12 +249,12 @@ def build_dataset(t: np.ndarray, measured: dict[str, np.ndarray], config: DataCo
         measured_order, source_name = sources[-1]
         if config.derivatives == "exact":
             raise ConfigError("data.derivatives", f"{name!r} is not measured: choose an estimator "
-                              "(savgol, spline, loess or finite_difference)")
+                              "(savgol, spline, loess, finite_difference or butterworth)")
         if source_name not in estimates:
             highest = max(split_derivative(s)[1] for s in spec.signals if split_derivative(s)[0] == base) - measured_order
             column_name = config.columns.get(source_name, source_name)
             estimates[source_name] = estimate(t, measured[source_name], highest, config.derivatives, config.window,
-                                              f"{source}: column {column_name!r} ({source_name})")
+                                              f"{source}: column {column_name!r} ({source_name})", config.cutoff)
         signals[name] = estimates[source_name].values[order - measured_order]
     info = {**info, "samples": int(t.size), "measured": sorted(measured),
             "derivatives": {k: e.info for k, e in estimates.items()} or config.derivatives,
@@ -285,10 +288,16 @@ def check_variation(spec: ModelSpec, signals: Mapping[str, torch.Tensor], source
                                 "cannot be identified")
 
 
+@functools.lru_cache(maxsize=8)
+def _simulation(name: str) -> dict[str, np.ndarray]:
+    """The noise-free simulation of a named system (computed once per process)."""
+    return {k: v.numpy() for k, v in simulate(get_system(name), dtype=torch.float64).items()}
+
+
 def simulated_measurements(config: DataConfig) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """A controlled case: every simulated signal, and what its sensors record (with noise)."""
     system = get_system(config.system)
-    simulated = {k: v.numpy() for k, v in simulate(system, dtype=torch.float64).items()}
+    simulated = {k: v.copy() for k, v in _simulation(config.system).items()}
     rng = np.random.default_rng(config.seed)
     measured = {}
     for name in system.measured:
@@ -310,5 +319,5 @@ def simulated_dataset(config: DataConfig, spec: ModelSpec, dtype) -> Dataset:
         return Dataset(signals, {**info, "samples": int(simulated["t"].size), "derivatives": "exact"})
     if config.derivatives == "exact":
         raise ConfigError("data.derivatives", "with noise, derivatives must be estimated: choose savgol, spline, "
-                          "loess or finite_difference")
+                          "loess, finite_difference or butterworth")
     return build_dataset(simulated["t"], measured, config, spec, info, dtype, info["source"])

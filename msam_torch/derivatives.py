@@ -6,12 +6,17 @@ Estimators (all return the smoothed signal and its first ``order`` derivatives):
   (``scipy.interpolate.make_smoothing_spline``);
 - ``loess``: locally weighted linear regression (statsmodels ``lowess``, the paper's choice), then
   a cubic interpolating spline for the derivatives;
-- ``finite_difference``: no smoothing, second-order central differences (``numpy.gradient``).
+- ``finite_difference``: no smoothing, second-order central differences (``numpy.gradient``);
+- ``butterworth``: zero-phase low-pass Butterworth filter of order 4 run forwards and backwards
+  (``scipy.signal.butter`` + ``sosfiltfilt``), then second-order central differences of the filtered
+  signal: the filtering chain of inverse-dynamics identification (IDIM-LS) of mechanical systems.
+  The cut-off is ``data.cutoff`` (cycles per time unit, Hz for seconds) or the noise-floor rule below.
 
 Window rule (``savgol`` and ``loess`` when no window is given): the smoother should pass what
 the record holds above its noise and stop where the noise takes over, the cut-off of a Wiener
 filter. :func:`choose_window` finds the lowest frequency at which the signal's power (tapered,
-band-averaged periodogram) falls to the white-noise power set by :func:`noise_level`, and picks the
+band-averaged periodogram) falls to the white-noise power set by :func:`noise_level` (``butterworth``
+takes that frequency as its cut-off), and picks the
 window whose cut-off frequency is there (Schafer 2011: ``f_c ~ (p + 1) / (3.2 w - 4.6)`` cycles per
 sample for a local polynomial of degree ``p``). Differentiation multiplies signal and noise alike
 by ``omega^k``, so the same cut-off serves every derivative order. Noise-free records get the
@@ -25,9 +30,11 @@ import numpy as np
 
 from .errors import DataError
 
-METHODS = ("savgol", "spline", "loess", "finite_difference")
+METHODS = ("savgol", "spline", "loess", "finite_difference", "butterworth")
 SAVGOL_DEGREE = 3  # local cubic: unbiased for the first two derivatives of a cubic
 LOESS_DEGREE = 1  # statsmodels lowess fits local lines
+BUTTERWORTH_ORDER = 4  # as in inverse-dynamics identification of robots and drives (IDIM-LS)
+HIGHEST_CUTOFF = 0.45  # cycles per sample: a low-pass cut-off must lie below Nyquist (0.5)
 BAND = 9  # periodogram bins averaged before comparing with the noise floor
 
 
@@ -82,14 +89,15 @@ def choose_window(y: np.ndarray, degree: int) -> tuple[int, float]:
 
 
 def estimate(t: np.ndarray, y: np.ndarray, order: int, method: str = "savgol", window: int | None = None,
-             name: str = "signal") -> Estimate:
+             name: str = "signal", cutoff: float | None = None) -> Estimate:
     """Smooth ``y(t)`` and estimate derivatives up to ``order``; errors name ``name``.
 
-    ``info`` records the method, the window (samples, ``None`` where not windowed), how it was
-    chosen, the local degree and the noise estimate, for the result's provenance."""
+    ``cutoff`` (cycles per time unit) is the ``butterworth`` cut-off. ``info`` records the method,
+    the window (samples, ``None`` where not windowed) or cut-off, how it was chosen, the local degree
+    or filter order and the noise estimate, for the result's provenance."""
     try:
         with np.errstate(all="ignore"):
-            result = _estimate(t, y, order, method, window, name)
+            result = _estimate(t, y, order, method, window, name, cutoff)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # the libraries' numeric failures
         raise DataError(f"{name}: the {method} estimator failed: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
     if not all(np.isfinite(v).all() for v in result.values):
@@ -97,7 +105,7 @@ def estimate(t: np.ndarray, y: np.ndarray, order: int, method: str = "savgol", w
     return result
 
 
-def _estimate(t, y, order, method, window, name) -> Estimate:
+def _estimate(t, y, order, method, window, name, cutoff=None) -> Estimate:
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
     n = y.size
@@ -106,10 +114,12 @@ def _estimate(t, y, order, method, window, name) -> Estimate:
     if order > 0 and n > 1 and np.ptp(y) == 0:
         raise DataError(f"{name}: the signal is constant, so its derivatives carry no information")
     info = {"method": method, "window": None, "window_rule": None, "noise_std": noise_level(y)}
-    if method == "finite_difference":
+    if method in ("finite_difference", "butterworth"):
         if n < order + 2:
             raise DataError(f"{name}: {n} samples are too few for finite differences of order {order} "
                             f"(need {order + 2})")
+        if method == "butterworth":
+            y, info = _butterworth(t, y, cutoff, name, info)
         values = [y]
         for _ in range(order):
             values.append(np.gradient(values[-1], t, edge_order=2))
@@ -147,3 +157,26 @@ def _estimate(t, y, order, method, window, name) -> Estimate:
     smooth = lowess(y, t, frac=min(1.0, window / n), it=0, return_sorted=False)
     spline = CubicSpline(t, smooth)
     return Estimate([smooth] + [spline(t, nu=k) for k in range(1, order + 1)], info)
+
+
+def _butterworth(t: np.ndarray, y: np.ndarray, cutoff: float | None, name: str, info: dict) -> tuple[np.ndarray, dict]:
+    """Zero-phase Butterworth low-pass of ``y`` at ``cutoff`` (cycles per time unit; default the
+    noise-floor frequency of :func:`cutoff_frequency`)."""
+    from scipy.signal import butter, sosfiltfilt
+
+    dt = float(np.median(np.diff(t)))
+    rule = "given"
+    if cutoff is None:
+        per_sample = min(max(cutoff_frequency(y, noise_level(y)), 1.0 / y.size), HIGHEST_CUTOFF)
+        rule = "noise floor"
+    else:
+        per_sample = cutoff * dt
+        if not 0 < per_sample < 0.5:
+            raise DataError(f"{name}: data.cutoff={cutoff:g} must lie between 0 and the Nyquist frequency "
+                            f"{0.5 / dt:.6g} (cycles per time unit)")
+    sos = butter(BUTTERWORTH_ORDER, 2.0 * per_sample, output="sos")
+    padding = min(int(np.ceil(3.0 / per_sample)), y.size - 1)  # odd extension over ~3 periods at the cut-off:
+    # scipy's default (27 samples) leaves the filter's start-up transient in the edge derivatives
+    info = {**info, "cutoff": per_sample / dt, "cutoff_per_sample": per_sample, "window_rule": rule,
+            "filter_order": BUTTERWORTH_ORDER, "zero_phase": True}
+    return np.ascontiguousarray(sosfiltfilt(sos, y, padlen=padding)), info

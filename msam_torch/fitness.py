@@ -11,9 +11,8 @@ def correlation(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Pearson correlation rho(a, b) over the last axis; 0 where either side is constant."""
     a = a - a.mean(-1, keepdim=True)
     b = b - b.mean(-1, keepdim=True)
-    denominator = torch.sqrt((a * a).sum(-1) * (b * b).sum(-1))
-    rho = (a * b).sum(-1) / denominator
-    return torch.where(denominator > 0, rho, torch.zeros_like(rho))
+    rho = torch.linalg.vecdot(a, b) / torch.sqrt(torch.linalg.vecdot(a, a) * torch.linalg.vecdot(b, b))
+    return rho.nan_to_num_(0.0, 0.0, 0.0)  # 0/0 (a constant side) and a vanished denominator
 
 
 def sum_abs_error(y: torch.Tensor, yhat: torch.Tensor) -> torch.Tensor:

@@ -64,7 +64,7 @@ def concat_fits(fits: list[Fit]) -> Fit:
     """Fits of consecutive groups of trials as one Fit (the candidates are the same)."""
     if len(fits) == 1:
         return fits[0]
-    join = lambda name: torch.cat([getattr(f, name) for f in fits])
+    join = lambda name: None if getattr(fits[0], name) is None else torch.cat([getattr(f, name) for f in fits])
     joined = {f.name: join(f.name) for f in dataclasses.fields(Fit) if f.name not in ("choices", "start", "final")}
     measures = lambda name: {k: torch.cat([getattr(f, name)[k] for f in fits]) for k in getattr(fits[0], name)}
     return Fit(choices=fits[0].choices, start=measures("start"), final=measures("final"), **joined)

@@ -38,8 +38,8 @@ def perturbation_magnitude(cols: torch.Tensor, cols_perturbed: torch.Tensor) -> 
 
 def perturbation_magnitude_from_change(cols: torch.Tensor, change: torch.Tensor) -> torch.Tensor:
     """Eq. 15 from the columns and their change ``S(Gamma + dgamma e_i) - S`` (column i alone)."""
-    numerator = torch.linalg.vector_norm(change, ord=1, dim=-2)
-    denominator = torch.linalg.vector_norm(cols, dim=-1).sum(-1, keepdim=True)
+    numerator = change.abs().sum(-2)
+    denominator = (cols * cols).sum(-1).sqrt_().sum(-1, keepdim=True)
     return numerator / denominator.clamp_min(torch.finfo(cols.dtype).tiny)
 
 

@@ -517,7 +517,7 @@ def _record(t, measured: dict, model: SystemModel, outputs, data: DataConfig, si
         elif lower:
             have, name = lower[-1]
             method = "savgol" if data.derivatives == "exact" else data.derivatives
-            guess.append(float(estimate(t, measured[name], order - have, method, data.window, name).values[order - have][0]))
+            guess.append(float(estimate(t, measured[name], order - have, method, data.window, name, data.cutoff).values[order - have][0]))
         else:
             guess.append(0.0)
     as_tensor = lambda v: torch.as_tensor(np.asarray(v, dtype=float).copy(), dtype=dtype)

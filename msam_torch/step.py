@@ -12,7 +12,7 @@ import torch
 
 from .candidates import Selection, columns, predict
 from .fitness import correlation, scores
-from .sensitivity import gram_condition_number, perturbation_magnitude_from_change, safe_eigh
+from .sensitivity import gram_condition_number, perturbation_magnitude_from_change
 
 LINE_SEARCH_STEPS = (1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125)
 
@@ -56,6 +56,7 @@ class Evaluation:
     sum_abs_error: torch.Tensor
     rho: torch.Tensor
     initial: torch.Tensor | None = None  # (T, C, S) initial states simulated from (simulation mode)
+    design_gram: torch.Tensor | None = None  # D^T D of [cols, fixed components] (theta re-solved)
 
 
 @dataclass(frozen=True)
@@ -84,35 +85,63 @@ def lstsq(a: torch.Tensor, b: torch.Tensor, damping: float = 0.0, rcond: float =
 
 def solve_normal(gram: torch.Tensor, rhs: torch.Tensor, damping: float = 0.0, rcond: float = 1e-12) -> torch.Tensor:
     """:func:`lstsq` from its normal equations: ``gram = a^T a`` (..., K, K), ``rhs = a^T b`` (..., K)
-    or several right-hand sides (..., K, R). The column norms are ``sqrt(diag(gram))``."""
+    or several right-hand sides (..., K, R). The column norms are ``sqrt(diag(gram))``; a system
+    that is not finite (a diverging candidate) gets a nan solution and leaves the rest unaffected."""
     many = rhs.dim() == gram.dim()
-    norms = torch.diagonal(gram, dim1=-2, dim2=-1).clamp_min(0).sqrt()
-    safe = torch.where(norms > 0, norms, torch.ones_like(norms))
-    scaled = gram / (safe.unsqueeze(-1) * safe.unsqueeze(-2))
+    norms = torch.diagonal(gram, dim1=-2, dim2=-1).sqrt()
+    inverse = torch.where(norms > 0, norms.reciprocal(), 0.0)  # zero columns get a zero solution
+    scaled = gram * inverse.unsqueeze(-1) * inverse.unsqueeze(-2)
     if damping:
         scaled = scaled + damping * torch.eye(gram.shape[-1], dtype=gram.dtype, device=gram.device)
-    column = (lambda v: v.unsqueeze(-1)) if many else (lambda v: v)
-    rhs = rhs / column(safe) if many else (rhs / safe).unsqueeze(-1)
-    values, vectors, finite = safe_eigh(scaled)  # a non-finite system gets a nan solution (diverged)
-    keep = values > rcond * values[..., -1:].clamp_min(torch.finfo(gram.dtype).tiny)
-    inverse = torch.where(keep, 1.0 / torch.where(keep, values, torch.ones_like(values)), torch.zeros_like(values))
-    x = vectors @ (inverse.unsqueeze(-1) * (vectors.mT @ rhs))
-    x = x if many else x.squeeze(-1)
-    x = torch.where(column(norms) > 0, x / column(safe), torch.zeros_like(x))
-    return torch.where(finite.view(finite.shape + (1,) * (x.dim() - finite.dim())), x, torch.full_like(x, torch.nan))
+    finite = torch.isfinite(scaled).all(-1).all(-1, keepdim=True)
+    scaled = torch.where(finite.unsqueeze(-1), scaled, 0.0)
+    column = inverse.unsqueeze(-1) if many else inverse
+    x = torch.linalg.pinv(scaled, rtol=rcond, hermitian=True) @ (rhs * column if many else (rhs * inverse).unsqueeze(-1))
+    x = x * column if many else x.squeeze(-1) * inverse
+    return torch.where(finite.unsqueeze(-1) if many else finite, x, torch.nan)
 
 
-def design_matrix(selection: Selection, cols: torch.Tensor) -> torch.Tensor:
-    """The columns of every component, adjustable then fixed: (..., N, Q + P)."""
+def _fixed_times(selection: Selection, m: torch.Tensor) -> torch.Tensor:
+    """``F^T m`` for the fixed components ``F`` and ``m`` (..., C, N, K): (..., C, P, K)."""
+    return selection.fixed_components.mT @ m
+
+
+def design_gram(selection: Selection, cols: torch.Tensor) -> torch.Tensor:
+    """``D^T D`` of the design ``D = [cols, fixed components]`` (..., Q + P, Q + P), assembled
+    from its blocks so that ``D`` (the fixed columns copied for every candidate) is never formed."""
+    gram = cols.mT @ cols
     if not selection.fixed_components.shape[-1]:
-        return cols
-    return torch.cat([cols, selection.fixed_components.expand(cols.shape[:-1] + (-1,))], -1)
+        return gram
+    cross = _fixed_times(selection, cols)  # (..., P, Q)
+    fixed = selection.fixed_components.mT @ selection.fixed_components
+    fixed = fixed.expand(cross.shape[:-2] + fixed.shape[-2:])
+    return torch.cat([torch.cat([gram, cross.mT], -1), torch.cat([cross, fixed], -1)], -2)
 
 
-def solve_theta(selection: Selection, cols: torch.Tensor, rcond: float = 1e-12):
-    """Theta of every component by linear least squares for fixed exponents."""
-    design = design_matrix(selection, cols)
-    solution = solve_normal(design.mT @ design, (design.mT @ selection.y.unsqueeze(-1)).squeeze(-1), rcond=rcond)
+def design_transpose_times(selection: Selection, cols: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
+    """``D^T m`` for ``m`` (..., N, K): (..., Q + P, K)."""
+    top = cols.mT @ m
+    if not selection.fixed_components.shape[-1]:
+        return top
+    fixed = _fixed_times(selection, m)
+    return torch.cat([top, fixed.expand(top.shape[:-2] + fixed.shape[-2:])], -2)
+
+
+def design_times(selection: Selection, cols: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
+    """``D c`` for coefficients (..., Q + P, K): (..., N, K)."""
+    q = cols.shape[-1]
+    out = cols @ coefficients[..., :q, :]
+    if selection.fixed_components.shape[-1]:
+        out = out + selection.fixed_components @ coefficients[..., q:, :]
+    return out
+
+
+def solve_theta(selection: Selection, cols: torch.Tensor, rcond: float = 1e-12, gram: torch.Tensor | None = None):
+    """Theta of every component by linear least squares for fixed exponents (``gram``: ``D^T D``
+    when already known)."""
+    gram = design_gram(selection, cols) if gram is None else gram
+    rhs = design_transpose_times(selection, cols, selection.y.unsqueeze(-1)).squeeze(-1)
+    solution = solve_normal(gram, rhs, rcond=rcond)
     q = cols.shape[-1]
     return solution[..., :q], solution[..., q:]
 
@@ -120,13 +149,14 @@ def solve_theta(selection: Selection, cols: torch.Tensor, rcond: float = 1e-12):
 def evaluate(selection: Selection, state: State, options: StepOptions) -> Evaluation:
     """Columns, output and fitness of ``state`` (theta re-solved first under 'varpro')."""
     cols = columns(selection, state.gamma)
-    theta, theta_fixed = state.theta, state.theta_fixed
+    theta, theta_fixed, gram = state.theta, state.theta_fixed, None
     if options.theta == "varpro":
-        theta, theta_fixed = solve_theta(selection, cols, options.rcond)
+        gram = design_gram(selection, cols)
+        theta, theta_fixed = solve_theta(selection, cols, options.rcond, gram)
     yhat = predict(selection, cols, theta, theta_fixed)
     score, error, rho = scores(selection.y, yhat)
     score = torch.where(state.diverged, torch.full_like(score, -torch.inf), score)
-    return Evaluation(cols, yhat, theta, theta_fixed, score, error, rho)
+    return Evaluation(cols, yhat, theta, theta_fixed, score, error, rho, design_gram=gram)
 
 
 def step(selection: Selection, state: State, current: Evaluation, options: StepOptions,
@@ -147,18 +177,20 @@ def step(selection: Selection, state: State, current: Evaluation, options: StepO
     dm = perturbation_magnitude_from_change(current.cols, change)
     theta = current.theta
     if options.theta == "varpro":  # Kaufman: project the sensitivities off the span of the columns
-        design = design_matrix(selection, current.cols)
+        cols = current.cols
+        design = design_gram(selection, cols) if current.design_gram is None else current.design_gram
         sens = change * theta.unsqueeze(-2)
-        sens = sens - design @ solve_normal(design.mT @ design, design.mT @ sens, rcond=options.rcond)
+        projection = solve_normal(design, design_transpose_times(selection, cols, sens), rcond=options.rcond)
+        sens = sens - design_times(selection, cols, projection)
         gram = sens.mT @ sens
         rhs = (sens.mT @ eps.unsqueeze(-1)).squeeze(-1)
         fitted = lambda x: (sens @ x.unsqueeze(-1)).squeeze(-1)
     else:  # Y = change * theta: scale the Gram matrix of ``change`` instead of forming Y
         gram = (change.mT @ change) * (theta.unsqueeze(-1) * theta.unsqueeze(-2))
-        rhs = (change.mT @ eps.unsqueeze(-1)).squeeze(-1) * theta
-        fitted = lambda x: (change @ (theta * x).unsqueeze(-1)).squeeze(-1)
-    unit = torch.full_like(dm, options.dgamma)
-    steps = dm if options.scaling == "dm" else unit  # Phi's column i is Y_i / steps_i
+        rhs = (eps.unsqueeze(-2) @ change).squeeze(-2) * theta  # row forms: along the stored sample axis
+        fitted = lambda x: ((theta * x).unsqueeze(-2) @ change.mT).squeeze(-2)
+    unit = lambda: torch.full_like(dm, options.dgamma)
+    steps = dm if options.scaling == "dm" else unit()  # Phi's column i is Y_i / steps_i
     x = solve_normal(gram, rhs, options.damping, options.rcond)
     delta = x * steps.clamp_min(torch.finfo(dm.dtype).tiny)
 
@@ -172,7 +204,7 @@ def step(selection: Selection, state: State, current: Evaluation, options: StepO
     cond_scaled = cond_unscaled = None
     if conditions:
         cond_scaled = gram_condition_number(_rescale(gram, dm))
-        cond_unscaled = gram_condition_number(_rescale(gram, unit))
+        cond_unscaled = gram_condition_number(_rescale(gram, unit()))
     return StepResult(new_state, mu, delta, dm, cond_scaled, cond_unscaled)
 
 
@@ -186,9 +218,9 @@ def advance(gamma: torch.Tensor, mu: torch.Tensor, delta: torch.Tensor, diverged
             fitness: torch.Tensor, options: StepOptions) -> tuple[torch.Tensor, torch.Tensor]:
     """Eq. 18 ``gamma + mu delta``; candidates whose step is not finite or leaves ``gamma_limit``
     (or whose fitness is not finite) are marked diverged and keep their exponents."""
-    new = gamma + mu.unsqueeze(-1) * delta
-    bad = ~torch.isfinite(new).all(-1) | (new.abs() > options.gamma_limit).any(-1) | ~torch.isfinite(fitness)
-    diverged = diverged | bad
+    new = torch.addcmul(gamma, mu.unsqueeze(-1), delta)
+    within = (new.abs() <= options.gamma_limit).all(-1) & torch.isfinite(fitness)  # False for nan too
+    diverged = diverged | ~within
     return torch.where(diverged.unsqueeze(-1), gamma, new), diverged
 
 

@@ -4,6 +4,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -42,3 +43,17 @@ def test_interrupted_table4_resumes_to_the_same_table(tmp_path):
     assert (parts / "table4.md").read_text() == (whole / "table4.md").read_text()
     assert (parts / "table4.csv").read_text() == (whole / "table4.csv").read_text()
     assert (whole / "table4.png").stat().st_size > 0 and any((whole / "tensorboard").rglob("events.*"))
+
+
+def test_trials_split_into_groups_give_the_same_results_as_one_batch():
+    from msam_torch.config import load_config
+    from msam_torch.protocol import Trial, run_trials
+
+    config = load_config(ROOT / "configs" / "harmonic.yaml",
+                         ["adaptation.round_robin_steps=4", "adaptation.refinement_steps=2"])
+    trials = [Trial(level, k) for level in (0.0, 0.5) for k in range(2)]
+    whole = run_trials(config, trials, seed=3)
+    groups = run_trials(config, trials, seed=3, max_elements=1)  # one trial (and candidate) per group
+    for a, b in zip(whole, groups):
+        assert a.equations[0].adjustments == b.equations[0].adjustments
+        assert a.equations[0].exponents == pytest.approx(b.equations[0].exponents, abs=1e-9)
