@@ -7,7 +7,7 @@ from typing import Callable
 
 import torch
 
-from .candidates import EquationData
+from .candidates import EquationData, equation_choices
 from .config import Config, load_config
 from .data import Table, load_datasets
 from .result import EquationResult, RunResult, format_component, format_equation
@@ -95,7 +95,7 @@ def adapt_equation(config: Config, equation: Equation, signals: dict, theta: tor
     trainer = make_trainer(config) if trainer is None else trainer
     start = torch.tensor([equation.components[i].start for i in equation.adjustable], dtype=data.y.dtype,
                          device=data.y.device)
-    fit = trainer.fit(data, theta_adjustable, theta_fixed, start)
+    fit = trainer.fit(data, theta_adjustable, theta_fixed, start, choices=equation_choices(equation, data.y.device))
     tuned_final = tune_adapted(data, fit.choices[fit.winner], fit.gamma, fit.theta_fixed, a.hold_fixed)
     held = None if held_out is None else EquationData.build(equation, held_out)
     tuning = Tuning(tuned_start, tuned_final, a.tune_theta, a.hold_fixed, held)

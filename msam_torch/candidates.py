@@ -29,6 +29,13 @@ def enumerate_choices(n_functions: int, n_adjustable: int, device=None) -> torch
     return torch.tensor(rows, dtype=torch.long, device=device)
 
 
+def equation_choices(equation: Equation, device=None) -> torch.Tensor:
+    """Every candidate of ``equation`` (C, Q): one function of each adjustable component's own
+    set (``Equation.allowed``), in the order of :func:`enumerate_choices` when all are allowed."""
+    rows = list(itertools.product(*(equation.allowed(i) for i in equation.adjustable)))
+    return torch.tensor(rows, dtype=torch.long, device=device)
+
+
 @dataclass(frozen=True)
 class EquationData:
     """One state equation's signals on the samples, batched over trials.

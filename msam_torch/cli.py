@@ -53,7 +53,7 @@ def _run(args) -> int:
         print(f"  sum|eps| {eq.start['sum_abs_error']:.4g} -> {eq.final['sum_abs_error']:.4g}, "
               f"rho {eq.start['rho']:.4f} -> {eq.final['rho']:.4f}, "
               f"{len(eq.ranking)} candidates, {eq.diverged} diverged")
-        for stage, label in (("start", "tuned starting"), ("final", "tuned adapted")):
+        for stage, label in (("start", "tuned starting"), ("final", "tuned adapted")) if eq.theta_tuning else ():
             tuned = eq.theta_tuning[stage]
             off = ", ".join(f"{100 * e:.3g}%" for e in tuned["nominal_error"])
             print(f"{label}: {tuned['equation']}\n  sum|eps| {tuned['sum_abs_error']:.4g}, rho {tuned['rho']:.4f}; "
@@ -61,6 +61,10 @@ def _run(args) -> int:
         if eq.validation:
             print("  held out: " + ", ".join(f"{name} sum|eps| {m['sum_abs_error']:.4g} rho {m['rho']:.4f}"
                                              for name, m in eq.validation.items()))
+    for group in result.data.get("simulation", []):
+        for record, rows in group["free_run_rmse"].items():
+            print(f"free-run RMSE of {', '.join(group['outputs'])} on the {record} record: "
+                  + " -> ".join(f"{', '.join(f'{v:.4g}' for v in rows[label])} ({label})" for label in rows))
     print(f"wrote {path}")
     return 0
 

@@ -30,6 +30,9 @@ class ComponentConfig(_Section):
     theta: Union[str, Number] = Field(description="nominal theta_i, a number or an expression of parameters")
     adjustable: bool = Field(True, description="whether MSAM may adjust this component (Eq. 8)")
     start: Optional[Number] = Field(None, description="starting exponent (default 0)")
+    adjustments: Optional[list[str]] = Field(
+        None, min_length=1, description="this component's adjustment functions, a subset of its equation's "
+                                        "(default: all of them), e.g. a tank's outflow adjusted by its own level only")
 
 
 class EquationConfig(_Section):
@@ -95,6 +98,10 @@ class SimulationConfig(_Section):
     prefit_steps: int = Field(15, ge=0, description="Levenberg-Marquardt steps fitting theta and initial states first")
     refit_steps: int = Field(0, ge=0, description="Levenberg-Marquardt steps on theta and initial states before every exponent step")
     relative_step: float = Field(1e-6, gt=0, description="relative finite-difference step for theta and initial states")
+    saturation: dict[str, tuple[Optional[Number], Optional[Number]]] = Field(
+        {}, description="range [low, high] of a simulated state (null: unbounded), e.g. {x2: [null, 10]}: the state "
+                        "stops at a limit while its rate points beyond it (a tank that overflows, a level or sensor "
+                        "that saturates) and the compared output is clipped to it")
 
 
 class AdaptationConfig(_Section):

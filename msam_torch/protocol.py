@@ -20,7 +20,7 @@ from typing import Callable, Sequence
 import torch
 
 from .api import equation_result, make_trainer
-from .candidates import EquationData
+from .candidates import EquationData, equation_choices
 from .config import Config
 from .data import load_datasets
 from .result import EquationResult
@@ -113,5 +113,5 @@ def fit_equation(config: Config, spec: ModelSpec, equation: Equation, signals: d
         if on_trainer is not None:
             on_trainer(trainer, equation)
         fits.append(trainer.fit(data.expand_trials(theta.shape[0]), theta[:, list(equation.adjustable)],
-                                theta[:, list(equation.fixed)], start))
+                                theta[:, list(equation.fixed)], start, choices=equation_choices(equation, theta.device)))
     return concat_fits(fits), thetas, data.scale[0]

@@ -27,6 +27,7 @@ least-squares parameters (theta, theta_fixed, initial states).
 from __future__ import annotations
 
 import itertools
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -46,6 +47,7 @@ from .step import Evaluation, State, StepOptions, StepResult, advance, lstsq, st
 from .trainer import measures
 
 PREFIT_DAMPING = (0.0, 1e-4, 1e-2, 1.0)  # Levenberg-Marquardt dampings tried at once
+SERIAL_ELEMENTS = 32768  # batches of fewer state values are simulated on one thread (torch's grain size)
 
 
 @dataclass(frozen=True)
@@ -96,7 +98,7 @@ class SystemModel:
                     texts.append(f.text)
                     functions.append(f)
                 indices.append(texts.index(f.text))
-            allowed.extend(tuple(indices) for _ in eq.adjustable)
+            allowed.extend(tuple(indices[j] for j in eq.allowed(i)) for i in eq.adjustable)
         adjustable = tuple((e, i) for e, eq in enumerate(equations) for i in eq.adjustable)
         fixed = tuple((e, i) for e, eq in enumerate(equations) for i in eq.fixed)
         return cls(states, tuple(equations), tuple(external), tuple(source), adjustable, fixed, tuple(functions),
@@ -206,9 +208,11 @@ class Record:
 
 
 def simulate(model: SystemModel, record: Record, p: Parameters, x0: torch.Tensor, method: str = "rk4",
-             substeps: int = 1) -> torch.Tensor:
+             substeps: int = 1, limits: torch.Tensor | None = None) -> torch.Tensor:
     """Integrate ``model`` from ``x0`` (B, S) over the record with a fixed-step torchdiffeq solver:
-    states (B, N, S). External signals at the solver's stage times are looked up, not recomputed."""
+    states (B, N, S). External signals at the solver's stage times are looked up, not recomputed.
+    ``limits`` (2, S): a state's rate is zero while the state is at or beyond a limit and the rate
+    points outwards (``simulation.saturation``)."""
     rates = model.rhs(p, x0.dtype, x0.device)
     step = float(record.t[1] - record.t[0]) / substeps
     t0 = float(record.t[0])
@@ -219,10 +223,30 @@ def simulate(model: SystemModel, record: Record, p: Parameters, x0: torch.Tensor
         if key not in lookup:
             lookup[key] = record.at(t).unbind(-1)
         values = {"t": t, **dict(zip(model.states, x.unbind(-1))), **dict(zip(model.external, lookup[key]))}
-        return rates(values, x)
+        rate = rates(values, x)
+        if limits is None:
+            return rate
+        held = ((x >= limits[1]) & (rate > 0)) | ((x <= limits[0]) & (rate < 0))
+        return torch.where(held, torch.zeros_like(rate), rate)
 
-    trajectory = odeint(func, x0, record.t, method=method, options={"step_size": step})
+    with _single_thread(x0.numel() < SERIAL_ELEMENTS and x0.device.type == "cpu"):
+        trajectory = odeint(func, x0, record.t, method=method, options={"step_size": step})
     return trajectory.movedim(0, -2)
+
+
+@contextmanager
+def _single_thread(serial: bool):
+    """Run a fixed-step simulation of a small batch on one CPU thread: its thousands of tiny
+    per-stage operations gain nothing from intra-op threads and lose much to their
+    synchronisation (tenfold when the other cores are busy). The thread count is restored."""
+    threads = torch.get_num_threads()
+    if serial and threads > 1:
+        torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        if torch.get_num_threads() != threads:
+            torch.set_num_threads(threads)
 
 
 @dataclass(frozen=True)
@@ -241,6 +265,7 @@ class SimulationData:
     substeps: int = 1
     relative_step: float = 1e-6
     refit_steps: int = 0  # Levenberg-Marquardt steps on theta and initial states before every exponent step
+    limits: torch.Tensor | None = None  # (2, S) range of the simulated states (``simulation.saturation``)
 
     @property
     def y(self) -> torch.Tensor:
@@ -257,7 +282,9 @@ class SimulationData:
         t = self.scale.shape[0]
         scale = self.scale.view((t,) + (1,) * (len(batch) - 1) + self.scale.shape[-1:]) if len(batch) > 1 else self.scale
         p = Parameters(flat(gamma), flat(choice), flat(theta), flat(theta_fixed), flat(scale))
-        states = simulate(self.model, self.record, p, flat(initial), self.method, self.substeps)
+        states = simulate(self.model, self.record, p, flat(initial), self.method, self.substeps, self.limits)
+        if self.limits is not None:  # a fixed step may overshoot a limit by a fraction of a step
+            states = torch.clamp(states, self.limits[0], self.limits[1])
         out = states[..., list(self.outputs)].movedim(-1, -2).reshape(states.shape[0], -1)
         return out.reshape(batch + out.shape[-1:])
 
@@ -536,10 +563,27 @@ def output_states(config: Config, spec: ModelSpec, model: SystemModel) -> tuple[
     return chosen
 
 
+def state_limits(config: Config, states: tuple[str, ...], dtype=torch.float64, device=None) -> torch.Tensor | None:
+    """The range of every simulated state (2, S) from ``simulation.saturation`` (None: unbounded);
+    ranges of states another group simulates are ignored."""
+    saturation = config.adaptation.simulation.saturation
+    if not saturation:
+        return None
+    for name, (low, high) in saturation.items():
+        key = f"adaptation.simulation.saturation.{name}"
+        if name not in config.model.states:
+            raise ConfigError(key, f"{name!r} is not a state of the model")
+        if low is not None and high is not None and not low < high:
+            raise ConfigError(key, f"the range [{low}, {high}] is empty: give [low, high] with low < high")
+    bound = lambda name, k, default: default if saturation.get(name, (None, None))[k] is None else float(saturation[name][k])
+    return torch.tensor([[bound(x, 0, -torch.inf) for x in states], [bound(x, 1, torch.inf) for x in states]],
+                        dtype=dtype, device=device)
+
+
 def function_scale(data: SimulationData, choice, gamma, theta, theta_fixed, initial) -> torch.Tensor:
     """RMS of every adjustment function along a simulation (T, G) (``normalize: rms``)."""
     p = Parameters(gamma, choice, theta, theta_fixed, torch.ones_like(data.scale))
-    states = simulate(data.model, data.record, p, initial, data.method, data.substeps)  # (T, N, S)
+    states = simulate(data.model, data.record, p, initial, data.method, data.substeps, data.limits)  # (T, N, S)
     external = data.record.external.unsqueeze(0).expand(states.shape[:-1] + data.record.external.shape[-1:])
     values = data.model.values(data.record.t.view(1, -1).expand(states.shape[:-1]), states, external)
     f = data.model.functions_at(values, states.shape[:-1])
@@ -577,7 +621,7 @@ def prepare(config: Config, spec: ModelSpec, group: tuple[Equation, ...], parame
     free = torch.tensor([a.theta == "varpro"] * (q + p) + [sim.initial == "estimate"] * s, device=device)
     data = SimulationData(model, train, tuple(model.states.index(o) for o in outputs), train.guess.expand(t, -1),
                           torch.ones(t, len(model.functions), dtype=dtype, device=device), free, sim.method,
-                          sim.substeps, sim.relative_step, sim.refit_steps)
+                          sim.substeps, sim.relative_step, sim.refit_steps, state_limits(config, model.states, dtype, device))
     unadjusted = torch.full((t, 1, q), model.unadjusted, dtype=torch.long, device=device)
     gamma = theta.new_zeros(t, 1, q)
     z = torch.cat([theta, theta_fixed, data.initial], -1).unsqueeze(1)
@@ -737,7 +781,7 @@ def free_run_models(config: Config, spec: ModelSpec, models: dict[str, list], ba
     data = SimulationData(model, train, tuple(model.states.index(o) for o in outputs), train.guess.unsqueeze(0),
                           torch.ones(len(rows), len(model.functions), dtype=dtype),
                           torch.zeros(theta.shape[-1] + theta_fixed.shape[-1] + len(model.states), dtype=torch.bool),
-                          sim.method, sim.substeps, sim.relative_step)
+                          sim.method, sim.substeps, sim.relative_step, limits=state_limits(config, model.states, dtype))
     out = {"outputs": list(outputs), "free_run_rmse": {}, "simulated": {}}
     for name, record in (("train", train), ("validation", validation)):
         if record is not None and name in records:

@@ -39,6 +39,7 @@ class Component:
     theta: Expression
     adjustable: bool = True
     start: float = 0.0
+    allowed: tuple[int, ...] | None = None  # indices into the equation's adjustments (None: all of them)
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,11 @@ class Equation:
     @property
     def adjustable(self) -> tuple[int, ...]:
         return tuple(i for i, c in enumerate(self.components) if c.adjustable)
+
+    def allowed(self, i: int) -> tuple[int, ...]:
+        """The adjustment functions (indices into ``adjustments``) component ``i`` may take."""
+        allowed = self.components[i].allowed
+        return tuple(range(len(self.adjustments))) if allowed is None else allowed
 
     @property
     def fixed(self) -> tuple[int, ...]:
@@ -100,22 +106,39 @@ class ModelSpec:
             if eq.target in targets:
                 raise ConfigError(f"{key}.target", f"{eq.target!r} has two equations")
             targets.add(eq.target)
+            adjustments = tuple(
+                parse(f, f"{key}.adjustments[{i}]", signals - {eq.target}) for i, f in enumerate(eq.adjustments)
+            )
+            if len({f.text for f in adjustments}) != len(adjustments):
+                raise ConfigError(f"{key}.adjustments", "an adjustment function is listed twice")
+            texts = [f.text for f in adjustments]
+
+            def allowed(c, i):  # the component's subset of the equation's adjustment functions
+                if c.adjustments is None:
+                    return None
+                indices = []
+                for j, f in enumerate(c.adjustments):
+                    where = f"{key}.components[{i}].adjustments[{j}]"
+                    text = parse(f, where, signals - {eq.target}).text
+                    if text not in texts:
+                        raise ConfigError(where, f"{f!r} is not one of the equation's adjustments {texts}")
+                    indices.append(texts.index(text))
+                if len(set(indices)) != len(indices):
+                    raise ConfigError(f"{key}.components[{i}].adjustments", "an adjustment function is listed twice")
+                return tuple(indices)
+
             components = tuple(
                 Component(
                     term=parse(c.term, f"{key}.components[{i}].term", signals - {eq.target}),
                     theta=parse(c.theta, f"{key}.components[{i}].theta", parameters),
                     adjustable=c.adjustable,
                     start=float(c.start or 0.0),
+                    allowed=allowed(c, i),
                 )
                 for i, c in enumerate(eq.components)
             )
             if not any(c.adjustable for c in components):
                 raise ConfigError(f"{key}.components", "no component is adjustable")
-            adjustments = tuple(
-                parse(f, f"{key}.adjustments[{i}]", signals - {eq.target}) for i, f in enumerate(eq.adjustments)
-            )
-            if len({f.text for f in adjustments}) != len(adjustments):
-                raise ConfigError(f"{key}.adjustments", "an adjustment function is listed twice")
             equations.append(Equation(eq.target, components, adjustments))
         return cls(tuple(config.states), tuple(config.inputs), dict(config.parameters), tuple(equations))
 
