@@ -69,7 +69,8 @@ class DataConfig(_Section):
     parametric_error: float = Field(0.0, ge=0, description="total relative error of the nominal parameters")
     noise: float = Field(0.0, ge=0, description="simulated measurement noise, as a fraction of each signal's std")
     seed: int = 0
-    derivatives: Literal["auto", "exact", "savgol", "spline", "loess", "finite_difference", "butterworth"] = Field(
+    derivatives: Literal["auto", "exact", "savgol", "spline", "loess", "finite_difference", "butterworth",
+                          "interpolating_spline"] = Field(
         "auto", description="how unmeasured derivatives are estimated; 'auto': exact for a noise-free simulated "
                             "system, else savgol; 'exact': every signal the model reads is given")
     window: Optional[int] = Field(None, ge=3, description="derivative estimator window in samples "
