@@ -89,7 +89,8 @@ class SimulationConfig(_Section):
         "joint", description="simulate all equations together, or adapt each with the other states read from the data")
     method: Literal["rk4", "midpoint", "euler"] = Field("rk4", description="fixed-step torchdiffeq solver")
     substeps: int = Field(1, ge=1, description="solver steps per sample interval")
-    input_hold: Literal["linear", "zoh"] = Field("linear", description="inputs between samples: linear or zero-order hold")
+    input_hold: Literal["linear", "zoh", "cubic"] = Field(
+        "linear", description="inputs between samples: linear, zero-order hold, or cubic spline (band-limited inputs)")
     initial: Literal["estimate", "data"] = Field(
         "estimate", description="initial states estimated by least squares, or taken from the data / initial_guess")
     initial_guess: dict[str, Number] = Field({}, description="initial values of states the data do not give")
