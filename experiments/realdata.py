@@ -81,13 +81,17 @@ def named_laws(equation, entry, starting: torch.Tensor) -> list[tuple[int, str, 
 
 
 def rival(equation, eq, starting: torch.Tensor) -> tuple[int, dict] | None:
-    """The best-ranked candidate (rank, ranking row) whose catalogue names differ from the winner's
-    (names compared without hardening/softening, which needs each candidate's theta), or None."""
+    """The best-ranked candidate (rank, ranking row) whose catalogue names, at its round-robin
+    exponents, differ from the winner's (names compared without hardening/softening, which needs
+    each candidate's theta), or None."""
     base = lambda names: {next(e.name for e in CATALOGUE if name.endswith(e.name)) for name in names}
     laws = lambda entry: base(name for _, name, _ in named_laws(equation, entry, starting))
     winner = laws(eq)
     for rank, row in enumerate(eq.ranking):
-        if laws(replace(eq, adjustments=row["adjustments"], exponents=row["exponents"])) != winner:
+        adjustments, exponents = [None] * len(equation.components), [None] * len(equation.components)
+        for k, i in enumerate(equation.adjustable):  # ranking rows list the adjustable components only
+            adjustments[i], exponents[i] = row["adjustments"][k], row["exponents"][k]
+        if laws(replace(eq, adjustments=adjustments, exponents=exponents)) != winner:
             return rank, row
     return None
 
