@@ -80,6 +80,22 @@ def named_laws(equation, entry, starting: torch.Tensor) -> list[tuple[int, str, 
     return laws
 
 
+def rival(equation, eq, starting: torch.Tensor) -> tuple[int, dict] | None:
+    """The best-ranked candidate (rank, ranking row) whose catalogue names, at its round-robin
+    exponents, differ from the winner's (names compared without hardening/softening, which needs
+    each candidate's theta), or None."""
+    base = lambda names: {next(e.name for e in CATALOGUE if name.endswith(e.name)) for name in names}
+    laws = lambda entry: base(name for _, name, _ in named_laws(equation, entry, starting))
+    winner = laws(eq)
+    for rank, row in enumerate(eq.ranking):
+        adjustments, exponents = [None] * len(equation.components), [None] * len(equation.components)
+        for k, i in enumerate(equation.adjustable):  # ranking rows list the adjustable components only
+            adjustments[i], exponents[i] = row["adjustments"][k], row["exponents"][k]
+        if laws(replace(eq, adjustments=adjustments, exponents=exponents)) != winner:
+            return rank, row
+    return None
+
+
 def retuned_at(equation, entry, signals: dict, component: int, exponent: float) -> EquationResult:
     """``entry`` with one exponent set to ``exponent`` and every theta re-estimated by linear least
     squares (the theta re-estimation of msam_torch.tuning, on the same signals)."""
@@ -118,6 +134,14 @@ def run(case: str) -> None:
         print(f"  adapted: {eq.equation}")
         print(f"  winner {eq.ranking[0]['adjustments']}, runner-up {eq.ranking[1]['adjustments']} "
               f"(fitness {eq.ranking[0]['fitness']:.4g} vs {eq.ranking[1]['fitness']:.4g})")
+        equation = spec.equations[[e.target for e in spec.equations].index(eq.target)]
+        named = [name for _, name, _ in named_laws(equation, eq, spec.theta(equation))]
+        other = rival(equation, eq, spec.theta(equation))
+        if named and other is not None:
+            rank, row = other
+            print(f"  named: {', '.join(named)}; best candidate naming other laws: rank {rank + 1} "
+                  f"{row['adjustments']} (fitness {row['fitness']:.4g}; the winner's is "
+                  f"{eq.ranking[0]['fitness'] / row['fitness']:.2f}x)")
     if config.adaptation.evaluation == "simulation":
         for group in result.data["simulation"]:
             print(f"  initial states {group['initial']}")

@@ -72,7 +72,8 @@ class DataConfig(_Section):
     parametric_error: float = Field(0.0, ge=0, description="total relative error of the nominal parameters")
     noise: float = Field(0.0, ge=0, description="simulated measurement noise, as a fraction of each signal's std")
     seed: int = 0
-    derivatives: Literal["auto", "exact", "savgol", "spline", "loess", "finite_difference", "butterworth"] = Field(
+    derivatives: Literal["auto", "exact", "savgol", "spline", "loess", "finite_difference", "butterworth",
+                          "interpolating_spline"] = Field(
         "auto", description="how unmeasured derivatives are estimated; 'auto': exact for a noise-free simulated "
                             "system, else savgol; 'exact': every signal the model reads is given")
     window: Optional[int] = Field(None, ge=3, description="derivative estimator window in samples "
@@ -91,7 +92,8 @@ class SimulationConfig(_Section):
         "joint", description="simulate all equations together, or adapt each with the other states read from the data")
     method: Literal["rk4", "midpoint", "euler"] = Field("rk4", description="fixed-step torchdiffeq solver")
     substeps: int = Field(1, ge=1, description="solver steps per sample interval")
-    input_hold: Literal["linear", "zoh"] = Field("linear", description="inputs between samples: linear or zero-order hold")
+    input_hold: Literal["linear", "zoh", "cubic"] = Field(
+        "linear", description="inputs between samples: linear, zero-order hold, or cubic spline (band-limited inputs)")
     initial: Literal["estimate", "data"] = Field(
         "estimate", description="initial states estimated by least squares, or taken from the data / initial_guess")
     initial_guess: dict[str, Number] = Field({}, description="initial values of states the data do not give")

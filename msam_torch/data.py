@@ -21,7 +21,7 @@ import pandas as pd
 import torch
 
 from .config import DataConfig, RangeConfig
-from .derivatives import estimate, noise_level
+from .derivatives import METHODS, estimate, noise_level
 from .errors import ConfigError, DataError
 from .spec import ModelSpec, split_derivative
 from .systems import get_system, simulate
@@ -249,7 +249,7 @@ def build_dataset(t: np.ndarray, measured: dict[str, np.ndarray], config: DataCo
         measured_order, source_name = sources[-1]
         if config.derivatives == "exact":
             raise ConfigError("data.derivatives", f"{name!r} is not measured: choose an estimator "
-                              "(savgol, spline, loess, finite_difference or butterworth)")
+                              f"({', '.join(METHODS)})")
         if source_name not in estimates:
             highest = max(split_derivative(s)[1] for s in spec.signals if split_derivative(s)[0] == base) - measured_order
             column_name = config.columns.get(source_name, source_name)
@@ -318,6 +318,6 @@ def simulated_dataset(config: DataConfig, spec: ModelSpec, dtype) -> Dataset:
         signals = {k: torch.as_tensor(v, dtype=dtype) for k, v in simulated.items()}
         return Dataset(signals, {**info, "samples": int(simulated["t"].size), "derivatives": "exact"})
     if config.derivatives == "exact":
-        raise ConfigError("data.derivatives", "with noise, derivatives must be estimated: choose savgol, spline, "
-                          "loess, finite_difference or butterworth")
+        raise ConfigError("data.derivatives", "with noise, derivatives must be estimated: choose one of "
+                          f"{', '.join(METHODS)}")
     return build_dataset(simulated["t"], measured, config, spec, info, dtype, info["source"])

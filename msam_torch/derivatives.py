@@ -11,6 +11,15 @@ Estimators (all return the smoothed signal and its first ``order`` derivatives):
   (``scipy.signal.butter`` + ``sosfiltfilt``), then second-order central differences of the filtered
   signal: the filtering chain of inverse-dynamics identification (IDIM-LS) of mechanical systems.
   The cut-off is ``data.cutoff`` (cycles per time unit, Hz for seconds) or the noise-floor rule below.
+- ``interpolating_spline``: no smoothing, a quintic interpolating spline
+  (``scipy.interpolate.make_interp_spline``), for low-noise records sampled near their bandwidth.
+
+Local polynomials (``savgol``, ``finite_difference``, ``loess``) differentiate accurately only well
+below the Nyquist frequency: nested central differences lose 43 % of a second derivative at 0.2
+cycles per sample and 83 % at 1/3 (a record whose input reaches a third of the sampling rate).
+An interpolating spline of odd degree tends to the band-limited (sinc) reconstruction as its degree
+grows; the quintic one keeps the error of both derivatives under 0.5 % up to 0.2 and near 5 % at 1/3
+cycles per sample. It does not smooth, so its noise grows like ``omega^k`` up to the Nyquist frequency.
 
 Window rule (``savgol`` and ``loess`` when no window is given): the smoother should pass what
 the record holds above its noise and stop where the noise takes over, the cut-off of a Wiener
@@ -30,11 +39,12 @@ import numpy as np
 
 from .errors import DataError
 
-METHODS = ("savgol", "spline", "loess", "finite_difference", "butterworth")
+METHODS = ("savgol", "spline", "loess", "finite_difference", "butterworth", "interpolating_spline")
 SAVGOL_DEGREE = 3  # local cubic: unbiased for the first two derivatives of a cubic
 LOESS_DEGREE = 1  # statsmodels lowess fits local lines
 BUTTERWORTH_ORDER = 4  # as in inverse-dynamics identification of robots and drives (IDIM-LS)
 HIGHEST_CUTOFF = 0.45  # cycles per sample: a low-pass cut-off must lie below Nyquist (0.5)
+INTERPOLATING_DEGREE = 5  # odd: the quintic interpolating spline
 BAND = 9  # periodogram bins averaged before comparing with the noise floor
 
 
@@ -124,6 +134,15 @@ def _estimate(t, y, order, method, window, name, cutoff=None) -> Estimate:
         for _ in range(order):
             values.append(np.gradient(values[-1], t, edge_order=2))
         return Estimate(values, info)
+    if method == "interpolating_spline":
+        from scipy.interpolate import make_interp_spline
+
+        degree = max(INTERPOLATING_DEGREE, order + 2) | 1
+        if n < degree + 1:
+            raise DataError(f"{name}: {n} samples are too few for an interpolating spline of degree {degree} "
+                            f"(need {degree + 1})")
+        spline = make_interp_spline(t, y, k=degree)
+        return Estimate([y] + [spline(t, nu=k) for k in range(1, order + 1)], {**info, "degree": degree})
     if method == "spline":
         from scipy.interpolate import make_smoothing_spline
 

@@ -195,34 +195,59 @@ class Record:
     outputs: torch.Tensor  # (O, N) measured outputs
     guess: torch.Tensor  # (S,) initial states: measured, estimated from derivatives, or configured
     hold: str = "linear"
+    pieces: torch.Tensor | None = None  # (N-1, 4, E) cubic interpolating spline of ``external`` (hold "cubic")
+
+    @classmethod
+    def build(cls, t: torch.Tensor, external: torch.Tensor, outputs: torch.Tensor, guess: torch.Tensor,
+              hold: str = "linear") -> "Record":
+        """A record; ``hold: cubic`` fits the not-a-knot cubic spline through the external samples
+        (the band-limited signal between samples, which linear interpolation attenuates near the
+        Nyquist frequency)."""
+        pieces = None
+        if hold == "cubic" and external.shape[-1]:
+            from scipy.interpolate import CubicSpline
+
+            spline = CubicSpline(t.cpu().numpy(), external.cpu().numpy(), axis=0)
+            pieces = torch.as_tensor(spline.c, dtype=external.dtype, device=external.device).movedim(0, 1)
+        return cls(t, external, outputs, guess, hold, pieces)
+
+    def to(self, device) -> "Record":
+        move = lambda v: None if v is None else v.to(device)
+        return Record(move(self.t), move(self.external), move(self.outputs), move(self.guess), self.hold, move(self.pieces))
 
     def at(self, t: torch.Tensor) -> torch.Tensor:
-        """External signals at time ``t`` (E,): linear interpolation or zero-order hold."""
+        """External signals at times ``t`` (...) -> (..., E): linear interpolation, zero-order hold or
+        cubic spline."""
         n = self.t.shape[0]
-        position = (t - self.t[0]) / (self.t[1] - self.t[0])
+        step = self.t[1] - self.t[0]
+        position = (t - self.t[0]) / step
         if self.hold == "zoh":
             return self.external[torch.floor(position + 1e-9).long().clamp(0, n - 1)]
         k = torch.floor(position).long().clamp(0, n - 2)
-        w = (position - k).clamp(0.0, 1.0)
+        if self.pieces is not None:
+            s, c = ((position - k) * step).unsqueeze(-1), self.pieces[k].movedim(-2, 0)
+            return ((c[0] * s + c[1]) * s + c[2]) * s + c[3]
+        w = (position - k).clamp(0.0, 1.0).unsqueeze(-1)
         return self.external[k] * (1 - w) + self.external[k + 1] * w
 
 
 def simulate(model: SystemModel, record: Record, p: Parameters, x0: torch.Tensor, method: str = "rk4",
              substeps: int = 1, limits: torch.Tensor | None = None) -> torch.Tensor:
     """Integrate ``model`` from ``x0`` (B, S) over the record with a fixed-step torchdiffeq solver:
-    states (B, N, S). External signals at the solver's stage times are looked up, not recomputed.
+    states (B, N, S). External signals at the solver's stage times (sixths of a step: the stages of
+    rk4 (3/8 rule), midpoint and euler) are interpolated at once beforehand and looked up.
     ``limits`` (2, S): a state's rate is zero while the state is at or beyond a limit and the rate
     points outwards (``simulation.saturation``)."""
     rates = model.rhs(p, x0.dtype, x0.device)
     step = float(record.t[1] - record.t[0]) / substeps
     t0 = float(record.t[0])
-    lookup: dict = {}
+    sixths = 6 * substeps * (record.t.shape[0] - 1) + 1
+    table = record.at(record.t[0] + torch.arange(sixths, dtype=record.t.dtype, device=record.t.device) * (step / 6))
+    columns = table.unbind(-1)
 
     def func(t, x):
-        key = round((float(t) - t0) / step * 6)  # stages of rk4 (3/8 rule), midpoint, euler: sixths of a step
-        if key not in lookup:
-            lookup[key] = record.at(t).unbind(-1)
-        values = {"t": t, **dict(zip(model.states, x.unbind(-1))), **dict(zip(model.external, lookup[key]))}
+        key = min(max(round((float(t) - t0) / step * 6), 0), sixths - 1)
+        values = {"t": t, **dict(zip(model.states, x.unbind(-1))), **{name: c[key] for name, c in zip(model.external, columns)}}
         rate = rates(values, x)
         if limits is None:
             return rate
@@ -532,8 +557,8 @@ def _record(t, measured: dict, model: SystemModel, outputs, data: DataConfig, si
     as_tensor = lambda v: torch.as_tensor(np.asarray(v, dtype=float).copy(), dtype=dtype)
     external = torch.stack([as_tensor(measured[n]) for n in model.external], -1) if model.external \
         else torch.zeros(t.size, 0, dtype=dtype)
-    return Record(as_tensor(t), external, torch.stack([as_tensor(measured[o]) for o in outputs]),
-                  torch.tensor(guess, dtype=dtype), sim.input_hold)
+    return Record.build(as_tensor(t), external, torch.stack([as_tensor(measured[o]) for o in outputs]),
+                        torch.tensor(guess, dtype=dtype), sim.input_hold)
 
 
 def groups(spec: ModelSpec, coupling: str) -> list[tuple[Equation, ...]]:
@@ -608,9 +633,7 @@ def prepare(config: Config, spec: ModelSpec, group: tuple[Equation, ...], parame
     model = build_model(spec, group)
     outputs = output_states(config, spec, model)
     train, validation = load_records(config, spec, model, outputs, base_dir, dtype)
-    move = lambda r: None if r is None else Record(r.t.to(device), r.external.to(device), r.outputs.to(device),
-                                                     r.guess.to(device), r.hold)
-    train, validation = move(train), move(validation)
+    train, validation = train.to(device), None if validation is None else validation.to(device)
     a, sim = config.adaptation, config.adaptation.simulation
     trials = parameters if isinstance(parameters, list) else [parameters]
     thetas = [[spec.theta(eq, values).to(device=device, dtype=dtype) for eq in group] for values in trials]
