@@ -194,9 +194,9 @@ def step(selection: Selection, state: State, current: Evaluation, options: StepO
     x = solve_normal(gram, rhs, options.damping, options.rcond)
     delta = x * steps.clamp_min(torch.finfo(dm.dtype).tiny)
 
-    def trial_fitness(mus):  # (L,) -> (L, T, C)
-        gamma = state.gamma + mus.view((-1,) + (1,) * state.gamma.dim()) * delta
-        return evaluate(selection, replace(state, gamma=gamma), options).fitness
+    def trial_fitness(mus):  # (L,) -> (L, T, C), one mu at a time so that each evaluation stays chunk-sized
+        return torch.stack([evaluate(selection, replace(state, gamma=state.gamma + mu * delta), options).fitness
+                            for mu in mus])
 
     mu = step_size(current.fitness, fitted(x), eps, delta, options, trial_fitness)  # Phi dGamma = Y x
     gamma, diverged = advance(state.gamma, mu, delta, state.diverged, current.fitness, options)
