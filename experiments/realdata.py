@@ -22,7 +22,7 @@ from msam_torch.candidates import EquationData
 from msam_torch.config import load_config
 from msam_torch.data import load_datasets
 from msam_torch.diagnose.catalogue import CATALOGUE, name_effect
-from msam_torch.result import EquationResult
+from msam_torch.result import EquationResult, adjusted_columns
 from msam_torch.simulation_mode import free_run_models
 from msam_torch.spec import ModelSpec
 from msam_torch.step import lstsq
@@ -42,25 +42,9 @@ def retuned_start(equation, data: EquationData) -> EquationResult:
     return EquationResult(equation.target, "", "", none, none, theta, {}, {}, [], 0)
 
 
-def columns(equation, entry, signals: dict) -> torch.Tensor:
-    """The adjusted components of an entry (adjustments and exponents, Eq. 9) without theta: (N, C)."""
-    functions = {f.text: f for f in equation.adjustments}
-    target = signals[equation.target]
-    cols = []
-    for i, component in enumerate(equation.components):
-        term = torch.as_tensor(component.term(signals), dtype=target.dtype).expand_as(target)
-        if entry.adjustments[i] is not None:
-            function = functions[entry.adjustments[i]]
-            f = function(signals)
-            magnitude = f.abs().clamp_min(1e-300) ** entry.exponents[i]
-            term = term * (magnitude if function.is_magnitude else torch.sign(f) * magnitude)
-        cols.append(term)
-    return torch.stack(cols, -1)
-
-
 def one_step(equation, entry, signals: dict) -> torch.Tensor:
     """The modelled derivative of an entry (adjustments, exponents, theta in data units): (N,)."""
-    return columns(equation, entry, signals) @ torch.as_tensor(entry.theta, dtype=signals[equation.target].dtype)
+    return adjusted_columns(equation, entry, signals) @ torch.as_tensor(entry.theta, dtype=signals[equation.target].dtype)
 
 
 def named_laws(equation, entry, starting: torch.Tensor) -> list[tuple[int, str, float]]:
@@ -102,7 +86,7 @@ def retuned_at(equation, entry, signals: dict, component: int, exponent: float) 
     exponents = list(entry.exponents)
     exponents[component] = exponent
     moved = replace(entry, exponents=exponents)
-    theta = lstsq(columns(equation, moved, signals), signals[equation.target])
+    theta = lstsq(adjusted_columns(equation, moved, signals), signals[equation.target])
     return replace(moved, theta=[float(v) for v in theta])
 
 

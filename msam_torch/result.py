@@ -13,6 +13,9 @@ import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import torch
+
+from .candidates import FLOOR
 from .spec import Equation
 
 
@@ -42,6 +45,23 @@ def format_equation(target: str, thetas: list[float], terms: list[str]) -> str:
         body = f"{_number(abs(theta))} {term}"
         parts.append(f"{sign} {body}" if parts else (f"-{body}" if theta < 0 else body))
     return f"{target} = " + " ".join(parts)
+
+
+def adjusted_columns(equation: Equation, entry, signals: dict) -> torch.Tensor:
+    """The components of ``entry`` (an :class:`EquationResult` or anything with its ``adjustments``
+    and ``exponents``) with their adjustments ``M_i f_i^gamma_i`` (Eq. 9), without theta: (N, Q)."""
+    functions = {f.text: f for f in equation.adjustments}
+    target = signals[equation.target]
+    cols = []
+    for i, component in enumerate(equation.components):
+        term = torch.as_tensor(component.term(signals), dtype=target.dtype).expand_as(target)
+        if entry.adjustments[i] is not None:
+            function = functions[entry.adjustments[i]]
+            f = function(signals)
+            magnitude = f.abs().clamp_min(FLOOR) ** entry.exponents[i]
+            term = term * (magnitude if function.is_magnitude else torch.sign(f) * magnitude)
+        cols.append(term)
+    return torch.stack(cols, -1)
 
 
 @dataclass(frozen=True)

@@ -710,15 +710,20 @@ def label_equation(model: SystemModel) -> Equation:
 
 
 def report(prepared: Prepared, fit) -> dict:
-    """Fitted initial states and free-run RMSE (start vs adapted) on training and validation."""
+    """Fitted initial states, the theta-retuned starting model's theta per equation (data units) and
+    free-run RMSE (retuned start vs adapted) on training and validation."""
     data, model = prepared.data, prepared.data.model
     unadjusted = torch.full_like(fit.choices[:1].expand(fit.gamma.shape[0], -1), model.unadjusted)
     chosen = fit.choices[fit.winner]
     rows = {"start": (unadjusted, torch.zeros_like(fit.gamma), prepared.theta, prepared.theta_fixed),
             "adapted": (chosen, fit.gamma, fit.theta, fit.theta_fixed)}
+    retuned = {eq.target: [0.0] * len(eq.components) for eq in model.equations}
+    for slots, values in ((model.adjustable, prepared.theta), (model.fixed, prepared.theta_fixed)):
+        for k, (e, i) in enumerate(slots):
+            retuned[model.equations[e].target][i] = float(values[0, k])
     out = {"outputs": [model.states[i] for i in data.outputs],
            "initial": dict(zip(model.states, (fit.initial if fit.initial is not None else data.initial)[0].tolist())),
-           "free_run_rmse": {}}
+           "retuned_theta": retuned, "free_run_rmse": {}}
     both = [torch.cat([r[k] for r in rows.values()]) for k in range(4)]  # start and adapted as two rows
     scale = data.scale.expand(len(rows), -1)
     for name, record in (("train", data.record), ("validation", prepared.validation)):
@@ -771,18 +776,31 @@ def equation_results(model: SystemModel, fit, prepared: Prepared, trial: int = 0
     return results
 
 
-def free_run_models(config: Config, spec: ModelSpec, models: dict[str, list], base_dir: Path | str,
-                    records: tuple[str, ...] = ("train", "validation"), steps: int = 6, dtype=torch.float64) -> dict:
-    """Free-run RMSE of several models of ``spec`` on the training and validation records.
+@dataclass(frozen=True)
+class FreeRun:
+    """Free runs of B models on one record: the record, the output names and the simulated states
+    (B, N, S) of ``model`` (initial states fitted on the record's outputs)."""
 
-    ``models`` maps a label to one entry per equation with ``adjustments`` (per component: the
-    adjustment text, or None for an unadjusted or fixed component), ``exponents`` and ``theta`` in the
-    data's units, e.g. :class:`~msam_torch.result.EquationResult`. Every model runs jointly (all
-    equations) under the measured inputs, with only its initial states fitted (``steps``
-    Levenberg-Marquardt steps) on each of ``records``.
-    Returns ``{"outputs": [...], "free_run_rmse": {record: {label: [rmse per output]}},
-    "simulated": {record: {label: (O, N) list}}}``.
-    """
+    record: Record
+    model: SystemModel
+    outputs: tuple[str, ...]
+    states: torch.Tensor
+
+    @property
+    def simulated(self) -> torch.Tensor:
+        """Simulated outputs (B, O, N)."""
+        return self.states[..., [self.model.states.index(o) for o in self.outputs]].movedim(-1, -2)
+
+
+def free_runs(config: Config, spec: ModelSpec, models: dict[str, list], base_dir: Path | str,
+              records: tuple[str, ...] = ("train", "validation"), steps: int = 6,
+              dtype=torch.float64) -> dict[str, FreeRun]:
+    """Every model of ``spec`` run jointly (all equations) under the measured inputs of each of
+    ``records`` (those configured), with only its initial states fitted (``steps``
+    Levenberg-Marquardt steps). ``models`` maps a label to one entry per equation with
+    ``adjustments`` (per component: the adjustment text, or None for an unadjusted or fixed
+    component), ``exponents`` and ``theta`` in the data's units, e.g.
+    :class:`~msam_torch.result.EquationResult`."""
     model = build_model(spec, spec.equations)
     outputs = output_states(config, spec, model)
     train, validation = load_records(config, spec, model, outputs, Path(base_dir), dtype)
@@ -801,15 +819,33 @@ def free_run_models(config: Config, spec: ModelSpec, models: dict[str, list], ba
     as_tensor = lambda k, kind=dtype: torch.tensor([r[k] for r in rows], dtype=kind).reshape(len(rows), -1)
     choice, gamma, theta, theta_fixed = as_tensor(0, torch.long), as_tensor(1), as_tensor(2), as_tensor(3)
     sim = config.adaptation.simulation
-    data = SimulationData(model, train, tuple(model.states.index(o) for o in outputs), train.guess.unsqueeze(0),
-                          torch.ones(len(rows), len(model.functions), dtype=dtype),
+    scale = torch.ones(len(rows), len(model.functions), dtype=dtype)
+    data = SimulationData(model, train, tuple(model.states.index(o) for o in outputs), train.guess.unsqueeze(0), scale,
                           torch.zeros(theta.shape[-1] + theta_fixed.shape[-1] + len(model.states), dtype=torch.bool),
                           sim.method, sim.substeps, sim.relative_step, limits=state_limits(config, model.states, dtype))
-    out = {"outputs": list(outputs), "free_run_rmse": {}, "simulated": {}}
+    out = {}
     for name, record in (("train", train), ("validation", validation)):
         if record is not None and name in records:
-            simulated, _ = free_run(data, record, choice, gamma, theta, theta_fixed, steps,
-                                    estimate_initial=sim.initial == "estimate")
-            out["free_run_rmse"][name] = {label: rmse(record, simulated[k]) for k, label in enumerate(models)}
-            out["simulated"][name] = {label: simulated[k].tolist() for k, label in enumerate(models)}
+            _, initial = free_run(data, record, choice, gamma, theta, theta_fixed, steps,
+                                  estimate_initial=sim.initial == "estimate")
+            states = simulate(model, record, Parameters(gamma, choice, theta, theta_fixed, scale), initial,
+                              sim.method, sim.substeps, data.limits)
+            if data.limits is not None:
+                states = torch.clamp(states, data.limits[0], data.limits[1])
+            out[name] = FreeRun(record, model, outputs, states)
+    return out
+
+
+def free_run_models(config: Config, spec: ModelSpec, models: dict[str, list], base_dir: Path | str,
+                    records: tuple[str, ...] = ("train", "validation"), steps: int = 6, dtype=torch.float64) -> dict:
+    """Free-run RMSE of several models (see :func:`free_runs`) on the training and validation
+    records: ``{"outputs": [...], "free_run_rmse": {record: {label: [rmse per output]}},
+    "simulated": {record: {label: (O, N) list}}}``."""
+    runs = free_runs(config, spec, models, base_dir, records, steps, dtype)
+    out = {"outputs": list(output_states(config, spec, build_model(spec, spec.equations))), "free_run_rmse": {},
+           "simulated": {}}
+    for name, run in runs.items():
+        simulated = run.simulated
+        out["free_run_rmse"][name] = {label: rmse(run.record, simulated[k]) for k, label in enumerate(models)}
+        out["simulated"][name] = {label: simulated[k].tolist() for k, label in enumerate(models)}
     return out

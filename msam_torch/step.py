@@ -240,8 +240,14 @@ def step_size(fitness: torch.Tensor, predicted: torch.Tensor, eps: torch.Tensor,
 
 
 def _line_search(fitness, delta, trial_fitness) -> torch.Tensor:
-    """Largest mu in LINE_SEARCH_STEPS that raises the fitness (0 if none), all at once."""
-    mus = torch.tensor(LINE_SEARCH_STEPS, dtype=delta.dtype, device=delta.device)
-    better = trial_fitness(mus) > fitness  # (L, T, C)
-    first = torch.where(better.any(0), better.long().argmax(0), torch.full_like(better[0], len(mus), dtype=torch.long))
-    return torch.cat([mus, mus.new_zeros(1)])[first]
+    """Largest mu in LINE_SEARCH_STEPS that raises the fitness (0 if none): backtracking, which
+    stops as soon as every candidate has found its mu."""
+    mu = torch.zeros_like(fitness)
+    open_ = torch.ones_like(fitness, dtype=torch.bool)
+    for value in LINE_SEARCH_STEPS:
+        better = trial_fitness(torch.tensor([value], dtype=delta.dtype, device=delta.device))[0] > fitness
+        mu = torch.where(open_ & better, torch.full_like(mu, value), mu)
+        open_ = open_ & ~better
+        if not bool(open_.any()):
+            break
+    return mu

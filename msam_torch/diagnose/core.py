@@ -19,7 +19,7 @@ from ..api import nominal_parameters
 from ..candidates import FLOOR, EquationData, columns
 from ..config import Config, load_config
 from ..data import Dataset, load_datasets, measured_dataset, read_frame
-from ..errors import DataError
+from ..errors import ConfigError, DataError
 from ..result import format_component, format_equation
 from ..simulate import EquationModel, simulate
 from ..spec import Equation, ModelSpec, split_derivative
@@ -72,6 +72,10 @@ def diagnose(config: Config | dict | str | Path, data: Dataset | str | Path | No
         base_dir = Path(config).parent if isinstance(config, (str, Path)) else Path(".")
     if not isinstance(config, Config):
         config = load_config(config, overrides)
+    if config.adaptation.evaluation == "simulation":
+        from .simulated import diagnose_simulated
+
+        return diagnose_simulated(_with_files(config, data, validate), Path(base_dir), options)
     spec = ModelSpec.from_config(config.model)
     dtype = getattr(torch, config.adaptation.dtype)
     train, held_out = _datasets(config, spec, data, validate, base_dir, dtype)
@@ -99,6 +103,19 @@ def diagnose(config: Config | dict | str | Path, data: Dataset | str | Path | No
     return GapReport(verdict=verdict, equations=tuple(gaps), measures=gap_measures, data=data_info,
                      options=asdict(options), config=config.model_dump(mode="json"),
                      seconds=time.perf_counter() - started, series=series)
+
+
+def _with_files(config: Config, data, validate) -> Config:
+    """``config`` reading ``data`` and ``validate`` (files) as its training and validation records."""
+    if isinstance(data, Dataset) or isinstance(validate, Dataset):
+        raise ConfigError("adaptation.evaluation", "evaluation by simulation reads its records from files: "
+                          "give data and validate as CSV/Parquet paths")
+    update = {}
+    if data is not None:
+        update.update(file=str(Path(data).resolve()), system=None, validation=None)
+    if validate is not None:
+        update.update(validation_file=str(Path(validate).resolve()), validation=None)
+    return config.model_copy(update={"data": config.data.model_copy(update=update)}) if update else config
 
 
 def _datasets(config, spec, data, validate, base_dir, dtype):
@@ -435,13 +452,12 @@ def _where(equation, signals) -> dict:
     pointwise, because a weak-form row mixes the states over its test function's window."""
     data = EquationData.build(equation, signals, "none")
     design = torch.cat([data.components[0], data.fixed_components[0]], -1)
-    names = sorted(n for n in equation.signals - {equation.target, "t"} if n in signals)
-    values = {n: signals[n] for n in names}
-    regions, flagged, residual, explained = localise.localise(design, data.y[0], values)
-    summary = {"flagged_fraction": float(flagged.double().mean()), "split_explained": explained,
-               "time_windows": localise.time_windows(signals["t"], flagged, residual),
-               "regions": [asdict(r) for r in regions]}
-    return {"summary": summary, "series": {"t": signals["t"], "residual": residual, "flagged": flagged, "values": values}}
+    return localise.where(signals["t"], design, data.y[0], signal_values(equation, signals))
+
+
+def signal_values(equation: Equation, signals: dict) -> dict:
+    """The signals an equation reads (its target and time left out), by name."""
+    return {n: signals[n] for n in sorted(equation.signals - {equation.target, "t"}) if n in signals}
 
 
 def _measures(spec, models, train, held_out, series, options) -> dict:

@@ -8,10 +8,13 @@ rules are fitted as one batch. The rule whose two-regime fit removes the most sq
 where the model changes behaviour. Of its two sides, the one where the plain starting structure
 fits better (per row) is where the model holds; the other side's rows are flagged (when the split
 removes at least ``MIN_EXPLAINED`` of the single-fit residual) and merged into time windows.
+With ``orient="global"`` the failing side is the one where the structure fitted to *all* rows
+misses more per row: the question for a model already adapted ("where does it still miss?"),
+whose fit on a small region alone (a level pinned at a limit) can look perfect.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 
 import torch
 
@@ -61,10 +64,12 @@ def _candidates(values: dict[str, torch.Tensor], quantiles: int, dtype) -> list[
     return rules
 
 
-def localise(design: torch.Tensor, y: torch.Tensor, values: dict[str, torch.Tensor], quantiles: int = 39):
+def localise(design: torch.Tensor, y: torch.Tensor, values: dict[str, torch.Tensor], quantiles: int = 39,
+             orient: str = "separate"):
     """``(regions, flagged, residual, explained)``: the best rule per signal (oriented to the side
-    where the model fails), the flagged rows (M,), the residual of the plain starting structure
-    fitted where it holds, and the squared residual the best split removes."""
+    where the model fails, judged by a ``separate`` fit on each side or the ``global`` fit), the
+    flagged rows (M,), the residual of the plain structure fitted where it holds, and the squared
+    residual the best split removes."""
     tiny = torch.finfo(y.dtype).tiny
     total = _sse(design, y, torch.ones_like(y).unsqueeze(0))[0].clamp_min(tiny)
     rules = _candidates(values, quantiles, y.dtype)
@@ -75,8 +80,12 @@ def localise(design: torch.Tensor, y: torch.Tensor, values: dict[str, torch.Tens
     augmented = torch.cat([design.expand(len(rules), -1, -1), extra], -1)  # (R, M, K + 2)
     explained = 1 - (_sse(augmented, y, inside) + _sse(augmented, y, 1 - inside)) / total
     rows_in = inside.sum(-1)
-    plain_in = _sse(design, y, inside) / rows_in
-    plain_out = _sse(design, y, 1 - inside) / (len(y) - rows_in)
+    if orient == "global":
+        squared = (y - design @ lstsq(design, y)) ** 2
+        plain_in, plain_out = inside @ squared / rows_in, (1 - inside) @ squared / (len(y) - rows_in)
+    else:
+        plain_in = _sse(design, y, inside) / rows_in
+        plain_out = _sse(design, y, 1 - inside) / (len(y) - rows_in)
     fails_inside = plain_in > plain_out
     oriented = [r if bool(fails_inside[k]) else r.flipped() for k, r in enumerate(rules)]
     best_per_signal = {}
@@ -92,6 +101,16 @@ def localise(design: torch.Tensor, y: torch.Tensor, values: dict[str, torch.Tens
     holds = (~best.mask(values[best.signal])).to(y.dtype).sqrt()
     residual = y - design @ lstsq(design * holds.unsqueeze(-1), y * holds)
     return regions, flagged, residual, best.explained
+
+
+def where(t: torch.Tensor, design: torch.Tensor, y: torch.Tensor, values: dict[str, torch.Tensor],
+          orient: str = "separate") -> dict:
+    """:func:`localise` as the report's ``where`` (``summary``: flagged fraction, time windows,
+    regions) and the ``series`` its plots draw."""
+    regions, flagged, residual, explained = localise(design, y, values, orient=orient)
+    summary = {"flagged_fraction": float(flagged.double().mean()), "split_explained": explained,
+               "time_windows": time_windows(t, flagged, residual), "regions": [asdict(r) for r in regions]}
+    return {"summary": summary, "series": {"t": t, "residual": residual, "flagged": flagged, "values": values}}
 
 
 def time_windows(t: torch.Tensor, flagged: torch.Tensor, residual: torch.Tensor, gap: int = 1) -> list[dict]:

@@ -76,17 +76,21 @@ class GapReport:
             lines.append(f"{g.target}: {g.verdict}")
             if g.significant:
                 named = "" if g.catalogue_exponent is None else f" (catalogue {g.catalogue_exponent:.3f})"
+                boot = (f"; bootstrap wins {100 * c['win_frequency']:.0f} % of {c['bootstrap_trials']}, {_margin(c)}"
+                        if c["bootstrap_trials"] else "")
                 lines.append(f"  best: {g.hypothesis} ({g.effect}), exponent {g.exponent:.3f}{named}; "
-                             f"held-out RMSE -{100 * g.improvement['relative']:.1f} % vs theta re-fitted; "
-                             f"bootstrap wins {100 * c['win_frequency']:.0f} % of {c['bootstrap_trials']}, "
-                             f"{_margin(c)}")
+                             f"held-out RMSE -{100 * g.improvement['relative']:.1f} % vs theta re-fitted{boot}")
             lines.append(f"  starting: {g.start_equation}")
             lines.append(f"  theta re-fitted: {g.retuned_equation}")
             lines.append(f"  adapted:  {g.adapted_equation}")
             if g.where["flagged_fraction"] > 0:
                 r = g.where["regions"][0]
-                lines.append(f"  the starting model fails where {r['rule']} ({100 * r['share']:.0f} % of the record; "
-                             f"a separate fit there removes {100 * r['explained']:.0f} % of the squared residual)")
+                lines.append(f"  the {g.where.get('model', 'starting')} model fails where {r['rule']} "
+                             f"({100 * r['share']:.0f} % of the record; a separate fit there removes "
+                             f"{100 * r['explained']:.0f} % of the squared residual)")
+                if g.where.get("model") == "adapted":
+                    windows = ", ".join(f"{w['start']:.4g}..{w['stop']:.4g}" for w in g.where["time_windows"][:5])
+                    lines.append(f"  remaining gap in time windows {windows}: no candidate adjustment expresses it")
         for label, targets in self.measures.get("one_step", {}).items():
             for target, m in targets.items():
                 lines.append(f"one-step sum|eps| of {target} ({label}): start {m['start']['sum_abs_error']:.4g}, "
@@ -136,13 +140,16 @@ def write_markdown(report: GapReport, out: Path, plots: bool = True) -> Path:
         md += [f"| {w['start']:.4g} .. {w['stop']:.4g} | {100 * w['energy_share']:.0f} % |" for w in g.where["time_windows"][:10]]
         if len(g.where["time_windows"]) > 10:
             md += ["", f"({len(g.where['time_windows']) - 10} more windows in gap_report.json)"]
-        md += ["", "Components ranked:", "", "| component | best hypothesis | improvement |", "|---|---|---|"]
-        md += [f"| `{c['component']}` | `{c['best_hypothesis']}` | {100 * c['improvement']:.1f} % |" for c in g.components]
-        md += ["", "### Which: hypotheses by held-out RMSE", "", "| hypothesis | effect | exponent | held-out RMSE | improvement |",
-               "|---|---|---|---|---|"]
-        for r in g.ranking[:12]:
-            e = "" if r["exponent"] is None else f"{r['exponent']:.3f}"
-            md.append(f"| `{r['hypothesis']}` | {r['effect']} | {e} | {r['heldout_rmse']:.4g} | {100 * r['improvement']:.1f} % |")
+        if g.estimator.get("evaluation") == "simulation":
+            md += _simulated_which(g)
+        else:
+            md += ["", "Components ranked:", "", "| component | best hypothesis | improvement |", "|---|---|---|"]
+            md += [f"| `{c['component']}` | `{c['best_hypothesis']}` | {100 * c['improvement']:.1f} % |" for c in g.components]
+            md += ["", "### Which: hypotheses by held-out RMSE", "", "| hypothesis | effect | exponent | held-out RMSE | improvement |",
+                   "|---|---|---|---|---|"]
+            for r in g.ranking[:12]:
+                e = "" if r["exponent"] is None else f"{r['exponent']:.3f}"
+                md.append(f"| `{r['hypothesis']}` | {r['effect']} | {e} | {r['heldout_rmse']:.4g} | {100 * r['improvement']:.1f} % |")
         md.append("")
         for key in ("residual", "regions"):
             name = figures.get(f"{g.target}_{key}")
@@ -175,6 +182,19 @@ def write_markdown(report: GapReport, out: Path, plots: bool = True) -> Path:
     return write_atomic(out / "report.md", "\n".join(md))
 
 
+def _simulated_which(g: EquationGap) -> list[str]:
+    """Adjusted components with their catalogue names, and the round robin's candidates (evaluated
+    by simulation: fitness of the simulated outputs, Eq. 19)."""
+    md = ["", "Adjusted components:", "", "| component | adjustment | exponent | effect |", "|---|---|---|---|"]
+    md += [f"| `{c['component']}` | `{c['best_hypothesis']}` | {c['exponent']:.3f} | {c['effect']} |" for c in g.components]
+    md += ["", "### Which: candidates by fitness of the simulated outputs", "", "| candidate | fitness | exponents | diverged |",
+           "|---|---|---|---|"]
+    for r in g.ranking[:12]:
+        exponents = ", ".join(f"{e:.3f}" for e in r["exponents"])
+        md.append(f"| `{_cell(', '.join(r['adjustments']))}` | {r['fitness']:.4g} | {exponents} | {r['diverged']} |")
+    return md
+
+
 def _cell(text: str) -> str:
     """Escape the table separator inside a Markdown table cell."""
     return text.replace("|", "\\|")
@@ -194,7 +214,8 @@ def _plots(report: GapReport, out: Path) -> dict:
             continue
         t, r, flagged = where["t"].cpu(), where["residual"].cpu(), where["flagged"].cpu()
         fig, ax = plt.subplots(figsize=(8, 3))
-        ax.plot(t, r, lw=0.8, color="tab:blue", label="residual of the starting structure fitted where it holds")
+        ax.plot(t, r, lw=0.8, color="tab:blue",
+                label=f"residual of the {where.get('model', 'starting')} structure fitted where it holds")
         ax.scatter(t[flagged], r[flagged], s=6, color="tab:red", label="flagged")
         ax.set_xlabel("t"), ax.set_ylabel(f"residual of {target}"), ax.legend(fontsize=7)
         names[f"{target}_residual"] = _save(fig, out, f"{target}_residual_time.png")
