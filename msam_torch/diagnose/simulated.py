@@ -51,13 +51,13 @@ def diagnose_simulated(config: Config, base_dir: Path, options) -> GapReport:
     target_rms = float(torch.sqrt((held_out.record.outputs**2).mean()))
     significant = bool(confidence.significant(rmse[2], rmse[1], target_rms, options.relative, options.absolute))
     series, gaps = {}, []
-    for eq, adapted in zip(spec.equations, result.equations):
+    for e, (eq, adapted) in enumerate(zip(spec.equations, result.equations)):
         where = _remaining_gap(config, eq, adapted, runs["train"])
         series[eq.target] = {"where": where["series"]} if where["series"] else {}
         for key, run in runs.items():
             series[eq.target][f"free_run_{RECORDS[key]}"] = _trajectories(run)
-        gaps.append(_equation_gap(eq, adapted, models, significant, rmse, target_rms, where["summary"], options,
-                                  config))
+        gaps.append(_equation_gap(eq, adapted, models["start"][e].theta, models["retuned"][e].theta, significant,
+                                  rmse, target_rms, where["summary"], options, config))
     named = [g for g in gaps if g.verdict.startswith("gap explained")]
     verdict = "; ".join(f"{g.verdict} in {g.target}" for g in named) if named else (
         NOT_EXPLAINED if significant else NO_GAP)
@@ -72,11 +72,12 @@ def diagnose_simulated(config: Config, base_dir: Path, options) -> GapReport:
                      seconds=time.perf_counter() - started, series=series)
 
 
-def _equation_gap(eq: Equation, adapted: EquationResult, models: dict, significant: bool, rmse, target_rms,
-                  where: dict, options, config) -> EquationGap:
+def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retuned: list, significant: bool,
+                  rmse: torch.Tensor, target_rms: float, where: dict, options, config: Config) -> EquationGap:
+    """One equation's gap: ``rmse`` (3,) is the held-out free-run RMSE of the start, retuned and
+    adapted models (the group's, shared by its equations)."""
     index = [i for i, a in enumerate(adapted.adjustments) if a is not None]
     texts = [f.text for f in eq.adjustments]
-    start_theta = models["start"][[m.target for m in models["start"]].index(eq.target)].theta
     names = {i: catalogue.name_effect(eq, i, texts.index(adapted.adjustments[i]), adapted.exponents[i],
                                       adapted.theta[i], start_theta[i]) for i in index}
     known = [i for i in index if names[i] != catalogue.NOT_CATALOGUED]
@@ -90,7 +91,6 @@ def _equation_gap(eq: Equation, adapted: EquationResult, models: dict, significa
     components = [{"component": eq.components[i].term.text, "best_hypothesis": label(i), "effect": names[i],
                    "exponent": adapted.exponents[i]} for i in index]
     terms = [format_component(eq, i, None, None) for i in range(len(eq.components))]
-    retuned = models["retuned"][[m.target for m in models["retuned"]].index(eq.target)].theta
     return EquationGap(
         target=eq.target, significant=significant, verdict=verdict, effect=effect,
         hypothesis=label(shown) if shown is not None else "none", exponent=adapted.exponents[shown] if shown is not None else None,
