@@ -160,6 +160,9 @@ def tables() -> list[dict]:
 def child(args) -> None:
     import torch
 
+    from msam_torch.allocator import keep_freed_memory
+
+    keep_freed_memory()  # as the command-line tool and the experiments run
     torch.set_num_threads(args.threads)
     if args.cell:
         out = cell(args.cell[0], args.cell[1], args.repeats, args.sequential)
@@ -228,6 +231,11 @@ def main() -> int:
         if r:
             for row in r["tables"]:
                 print(f"   {row['protocol']:<30} {row['trials']:>4} trials  wall {row['wall_s']:7.2f} s  cpu {row['cpu_s']:7.2f} s")
+            for name in dict.fromkeys(row["protocol"].split("/")[0] for row in r["tables"]):
+                rows = [row for row in r["tables"] if row["protocol"].startswith(name + "/")]
+                if len(rows) > 1:
+                    print(f"   {name + ' (all variants)':<30} {sum(x['trials'] for x in rows):>4} trials  "
+                          f"wall {sum(x['wall_s'] for x in rows):7.2f} s  cpu {sum(x['cpu_s'] for x in rows):7.2f} s")
             print(f"   peak RSS {r['peak_rss_gb']:.2f} GB")
     print(f"\nload average {os.getloadavg()[0]:.1f} at the end (other processes share these CPUs)")
     return 0

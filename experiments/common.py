@@ -248,9 +248,12 @@ def set_threads(threads: int) -> None:
 
 
 def main_guard(fn) -> None:
-    """Run ``fn`` and turn input errors into one line and exit status 2."""
+    """Run ``fn`` (with the allocator setting of msam_torch.allocator) and turn input errors into
+    one line and exit status 2."""
+    from msam_torch.allocator import keep_freed_memory
     from msam_torch.errors import MSAMError
 
+    keep_freed_memory()
     try:
         sys.exit(fn())
     except MSAMError as exc:

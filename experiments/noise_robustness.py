@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from experiments.common import main_guard
 from msam_torch.api import adapt_equation
 from msam_torch.config import load_config
 from msam_torch.data import load_datasets
@@ -135,4 +136,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main_guard(main)

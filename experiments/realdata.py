@@ -17,6 +17,7 @@ from pathlib import Path
 
 import torch
 
+from msam_torch.allocator import keep_freed_memory
 from msam_torch.api import adapt
 from msam_torch.candidates import EquationData
 from msam_torch.config import load_config
@@ -176,6 +177,7 @@ def run(case: str) -> None:
 
 
 if __name__ == "__main__":
+    keep_freed_memory()
     torch.set_num_threads(2)
     for case in sys.argv[1:] or ["silverbox", "emps", "cascaded_tanks", "us_is"]:
         run(case)

@@ -144,6 +144,16 @@ class Selection:
             self._factors[dgamma] = torch.expm1(dgamma * self.log_f)
         return self._factors[dgamma]
 
+    def take(self, trials: torch.Tensor, candidates: torch.Tensor) -> "Selection":
+        """Candidate ``candidates[k]`` of trial ``trials[k]`` for each k, as K trials of one
+        candidate (sample axis kept last in memory). Not for projected selections, whose row
+        weights may be per trial."""
+        assert self.project is None, "a projected selection is evaluated whole"
+        t = self.log_f.shape[0]
+        pick = lambda values: values.mT[trials, candidates].mT.unsqueeze(1)
+        rows = lambda values: values.expand((t,) + values.shape[1:])[trials]
+        return Selection(rows(self.y), pick(self.signed_components), pick(self.log_f), rows(self.fixed_components))
+
 
 def power(log_f: torch.Tensor, gamma: torch.Tensor) -> torch.Tensor:
     """``|f|^gamma = exp(gamma log|f|)``, clamped below overflow."""

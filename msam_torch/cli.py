@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from . import __version__
+from .allocator import keep_freed_memory
 from .config import dump_config, load_config
 from .errors import MSAMError
 
@@ -111,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     if extra:
         args.overrides = list(getattr(args, "overrides", [])) + extra
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
+    keep_freed_memory()
     try:
         return args.handler(args)
     except MSAMError as exc:

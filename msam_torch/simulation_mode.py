@@ -381,15 +381,11 @@ class SimulationEvaluator:
         delta_gamma, delta_z = delta[..., :q], torch.zeros_like(z)
         delta_z[..., free] = delta[..., q:]
 
-        def trial_fitness(mus):  # (L,) -> (L, T, C); simulated as (T, C, L) so trials stay leading
-            view = mus.view(-1, 1)
-            gamma = state.gamma.unsqueeze(-2) + view * delta_gamma.unsqueeze(-2)
-            trial_z = z.unsqueeze(-2) + view * delta_z.unsqueeze(-2)
-            choice = selection.choice(state).unsqueeze(-2).expand(gamma.shape)
-            yhat = data.output(gamma, choice, *_unpacked(trial_z, q, p))
-            return fitness(selection.y.unsqueeze(-2), yhat).movedim(-1, 0)
+        def trial_fitness(mu, among):  # every candidate simulated, whether among or not
+            gamma, trial_z = state.gamma + mu * delta_gamma, z + mu * delta_z
+            return fitness(selection.y, data.output(gamma, selection.choice(state), *_unpacked(trial_z, q, p)))
 
-        mu = step_size(current.fitness, (phi @ delta.unsqueeze(-1)).squeeze(-1), eps, delta, options, trial_fitness)
+        mu = step_size(current.fitness, (phi @ delta.unsqueeze(-1)).squeeze(-1), eps, options, trial_fitness)
         gamma, diverged = advance(state.gamma, mu, delta_gamma, state.diverged, current.fitness, options)
         new_z = torch.where(diverged.unsqueeze(-1), z, z + mu.unsqueeze(-1) * delta_z)
         theta, theta_fixed, new_initial = _unpacked(new_z, q, p)

@@ -35,6 +35,9 @@ class State:
     """Exponents and theta of a batch of candidates: (T, C, Q), (T, C, Q), (T, C, P), (T, C).
 
     ``initial`` (T, C, S): estimated initial states, used by simulation-based evaluation only.
+    ``settled`` (T, C): the last line search found no step size that raises the fitness, so the
+    exponents did not move; the step being a function of the state alone, the next search would
+    find none again, and it is skipped.
     """
 
     gamma: torch.Tensor
@@ -42,6 +45,7 @@ class State:
     theta_fixed: torch.Tensor
     diverged: torch.Tensor
     initial: torch.Tensor | None = None
+    settled: torch.Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -128,12 +132,13 @@ def design_transpose_times(selection: Selection, cols: torch.Tensor, m: torch.Te
 
 
 def design_times(selection: Selection, cols: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
-    """``D c`` for coefficients (..., Q + P, K): (..., N, K)."""
+    """``D c`` for coefficients (..., Q + P, K): (..., N, K), formed as rows ``c^T D^T`` and
+    returned sample-axis last in memory, like ``cols``."""
     q = cols.shape[-1]
-    out = cols @ coefficients[..., :q, :]
+    out = coefficients[..., :q, :].mT @ cols.mT
     if selection.fixed_components.shape[-1]:
-        out = out + selection.fixed_components @ coefficients[..., q:, :]
-    return out
+        out = out + coefficients[..., q:, :].mT @ selection.fixed_components.mT
+    return out.mT
 
 
 def solve_theta(selection: Selection, cols: torch.Tensor, rcond: float = 1e-12, gram: torch.Tensor | None = None):
@@ -194,18 +199,33 @@ def step(selection: Selection, state: State, current: Evaluation, options: StepO
     x = solve_normal(gram, rhs, options.damping, options.rcond)
     delta = x * steps.clamp_min(torch.finfo(dm.dtype).tiny)
 
-    def trial_fitness(mus):  # (L,) -> (L, T, C), one mu at a time so that each evaluation stays chunk-sized
-        return torch.stack([evaluate(selection, replace(state, gamma=state.gamma + mu * delta), options).fitness
-                            for mu in mus])
+    def trial_fitness(mu, among):
+        return moved_fitness(selection, state, mu * delta, among, options)
 
-    mu = step_size(current.fitness, fitted(x), eps, delta, options, trial_fitness)  # Phi dGamma = Y x
+    mu = step_size(current.fitness, fitted(x), eps, options, trial_fitness, state.settled)  # Phi dGamma = Y x
     gamma, diverged = advance(state.gamma, mu, delta, state.diverged, current.fitness, options)
-    new_state = State(gamma, current.theta, current.theta_fixed, diverged)
+    settled = mu == 0 if options.step_size == "line_search" else None
+    new_state = State(gamma, current.theta, current.theta_fixed, diverged, settled=settled)
     cond_scaled = cond_unscaled = None
     if conditions:
         cond_scaled = gram_condition_number(_rescale(gram, dm))
         cond_unscaled = gram_condition_number(_rescale(gram, unit()))
     return StepResult(new_state, mu, delta, dm, cond_scaled, cond_unscaled)
+
+
+def moved_fitness(selection: Selection, state: State, move: torch.Tensor, among: torch.Tensor,
+                  options: StepOptions) -> torch.Tensor:
+    """Fitness (T, C) of the candidates with exponents ``gamma + move``, evaluated only where
+    ``among`` (T, C) holds (elsewhere any value): gathered into a batch of their own when they are
+    at most half of the batch, since the evaluation of each candidate is independent of the others."""
+    moved = replace(state, gamma=state.gamma + move)
+    if selection.project is not None or 2 * int(among.sum()) > among.numel():
+        return evaluate(selection, moved, options).fitness
+    trials, candidates = among.nonzero(as_tuple=True)
+    pick = lambda values: values.expand(among.shape + values.shape[2:])[trials, candidates].unsqueeze(1)
+    part = State(pick(moved.gamma), pick(moved.theta), pick(moved.theta_fixed), pick(moved.diverged))
+    fitness = torch.full(among.shape, -torch.inf, dtype=move.dtype, device=move.device)
+    return fitness.index_put_((trials, candidates), evaluate(selection.take(trials, candidates), part, options).fitness[:, 0])
 
 
 def _rescale(gram: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
@@ -224,30 +244,30 @@ def advance(gamma: torch.Tensor, mu: torch.Tensor, delta: torch.Tensor, diverged
     return torch.where(diverged.unsqueeze(-1), gamma, new), diverged
 
 
-def step_size(fitness: torch.Tensor, predicted: torch.Tensor, eps: torch.Tensor, delta: torch.Tensor,
-              options: StepOptions, trial_fitness) -> torch.Tensor:
+def step_size(fitness: torch.Tensor, predicted: torch.Tensor, eps: torch.Tensor,
+              options: StepOptions, trial_fitness, settled: torch.Tensor | None = None) -> torch.Tensor:
     """mu of every candidate (T, C): Eq. 20, 1, or a backtracking line search.
 
-    ``predicted`` is the first-order change ``Phi dGamma`` (..., N) of Eq. 11; ``trial_fitness(mus)``
-    evaluates the candidates moved by each ``mu`` of ``mus`` (L,) and returns their fitness
-    (L, T, C); only the line search calls it.
+    ``predicted`` is the first-order change ``Phi dGamma`` (..., N) of Eq. 11; ``trial_fitness(mu,
+    among)`` returns the fitness (T, C) of the candidates moved by ``mu``, needed only where
+    ``among`` (T, C) holds; only the line search calls it, and not for ``settled`` candidates (mu 0).
     """
     if options.step_size == "eq20":  # Eq. 20: mu = corr(eps, Phi dGamma)
         return correlation(eps, predicted)
     if options.step_size == "one":
         return torch.ones_like(fitness)
-    return _line_search(fitness, delta, trial_fitness)
+    return _line_search(fitness, trial_fitness, settled)
 
 
-def _line_search(fitness, delta, trial_fitness) -> torch.Tensor:
-    """Largest mu in LINE_SEARCH_STEPS that raises the fitness (0 if none): backtracking, which
-    stops as soon as every candidate has found its mu."""
+def _line_search(fitness, trial_fitness, settled=None) -> torch.Tensor:
+    """Largest mu in LINE_SEARCH_STEPS that raises the fitness (0 if none, and for ``settled``
+    candidates): backtracking, which stops as soon as every other candidate has found its mu."""
     mu = torch.zeros_like(fitness)
-    open_ = torch.ones_like(fitness, dtype=torch.bool)
+    open_ = torch.ones_like(fitness, dtype=torch.bool) if settled is None else ~settled
     for value in LINE_SEARCH_STEPS:
-        better = trial_fitness(torch.tensor([value], dtype=delta.dtype, device=delta.device))[0] > fitness
-        mu = torch.where(open_ & better, torch.full_like(mu, value), mu)
-        open_ = open_ & ~better
         if not bool(open_.any()):
             break
+        better = trial_fitness(value, open_) > fitness
+        mu = torch.where(open_ & better, torch.full_like(mu, value), mu)
+        open_ = open_ & ~better
     return mu

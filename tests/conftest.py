@@ -9,3 +9,10 @@ def _seed_and_guard_globals():
     dtype = torch.get_default_dtype()
     yield
     assert torch.get_default_dtype() == dtype, "a test changed torch's default dtype"
+
+
+def pytest_configure(config):
+    """The allocator setting the command-line tool runs under (msam_torch.allocator)."""
+    from msam_torch.allocator import keep_freed_memory
+
+    keep_freed_memory()

@@ -3,7 +3,7 @@ sensitivities by torch.func)."""
 import pytest
 import torch
 
-from msam_torch.candidates import Candidate, enumerate_choices
+from msam_torch.candidates import Candidate, Selection, enumerate_choices
 from msam_torch.reference import reference_round_robin, reference_step
 from msam_torch.step import State, StepOptions, evaluate, step
 from msam_torch.systems import perturb_parameters
@@ -45,3 +45,25 @@ def test_round_robin_winner_and_exponents_match_the_reference_path():
     assert int(fit.winner[0]) == int(fitness.argmax())
     assert torch.allclose(fit.ranking_fitness[0], fitness, rtol=1e-9)
     assert torch.allclose(fit.ranking_gamma[0], gamma, rtol=0, atol=1e-9)
+
+
+def test_line_search_round_robin_matches_the_reference_path(monkeypatch):
+    """The batched line search skips settled candidates and evaluates the still-open ones as a
+    batch of their own; neither may change a result of the one-candidate-at-a-time reference."""
+    data, _, _, _ = equation_data("harmonic", normalize="rms")
+    parameters = perturb_parameters({"m": 375.0, "c": 9800.0, "k": 130000.0}, 1.0, torch.Generator().manual_seed(2))
+    theta = torch.tensor([-parameters["c"] / parameters["m"], -parameters["k"] / parameters["m"]], dtype=D)
+    theta_fixed = torch.tensor([1 / parameters["m"]], dtype=D)
+    options = StepOptions(scaling="gauss_newton", step_size="line_search", theta="varpro")
+    choices = enumerate_choices(2, 2)
+    taken = []
+    original_take = Selection.take
+    monkeypatch.setattr(Selection, "take", lambda self, *a: taken.append(len(a[0])) or original_take(self, *a))
+    fit = Trainer(options, 15, 0).fit(data, theta.unsqueeze(0), theta_fixed.unsqueeze(0), choices=choices)
+    fitness, gamma = reference_round_robin(data, choices, theta, theta_fixed, options, 15)
+    assert taken and max(taken) <= choices.shape[0] // 2  # the open-candidate batches were used
+    assert int(fit.winner[0]) == int(fitness.argmax())
+    exact = fitness > 1e9  # the true structure fits to rounding: its fitness is 1 / (rounding error)
+    assert int(exact.sum()) == 1 and bool(fit.ranking_fitness[0][exact] > 1e9)
+    assert torch.allclose(fit.ranking_fitness[0][~exact], fitness[~exact], rtol=1e-9)
+    assert torch.allclose(fit.ranking_gamma[0], gamma, rtol=0, atol=1e-8)
