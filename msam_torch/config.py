@@ -2,25 +2,40 @@
 
 A config has three sections: ``model`` (the starting model, see :mod:`msam_torch.spec`), ``data``
 (where the measurements come from) and ``adaptation`` (the MSAM options). Unknown keys, wrong
-types and malformed YAML raise :class:`~msam_torch.errors.ConfigError` naming the key path.
-Values are data: YAML is read with ``yaml.safe_load`` and no string is ever executed.
+types, non-finite numbers, duplicated YAML keys, nesting deeper than :data:`MAX_YAML_DEPTH` and
+malformed YAML raise :class:`~msam_torch.errors.ConfigError` naming the key path (and line).
+Values are data: YAML is read with a ``yaml.SafeLoader`` and no string is ever executed.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
-from typing import Literal, Optional, Union
+from typing import Annotated, Literal, Optional, Union
 
 import pydantic
 import yaml
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from .errors import ConfigError
 
-Number = Union[float, int]
+MAX_YAML_DEPTH = 64
+
+
+def _within_float64(value):
+    try:
+        finite = math.isfinite(float(value))
+    except OverflowError:
+        finite = False
+    if not finite:
+        raise ValueError("must be a finite number within float64")
+    return value
+
+
+Number = Annotated[Union[float, int], AfterValidator(_within_float64)]
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class ComponentConfig(_Section):
@@ -71,7 +86,7 @@ class DataConfig(_Section):
     validation: Optional[RangeConfig] = None
     parametric_error: float = Field(0.0, ge=0, description="total relative error of the nominal parameters")
     noise: float = Field(0.0, ge=0, description="simulated measurement noise, as a fraction of each signal's std")
-    seed: int = 0
+    seed: int = Field(0, ge=0, lt=2**64, description="random seed (0 <= seed < 2**64)")
     derivatives: Literal["auto", "exact", "savgol", "spline", "loess", "finite_difference", "butterworth",
                           "interpolating_spline"] = Field(
         "auto", description="how unmeasured derivatives are estimated; 'auto': exact for a noise-free simulated "
@@ -122,10 +137,23 @@ class AdaptationConfig(_Section):
     gamma_limit: float = Field(20.0, gt=0, description="|gamma| beyond which a candidate is marked diverged")
     chunk_size: int = Field(4096, ge=1, description="candidates per batched chunk (bounds memory)")
     dtype: Literal["float64", "float32"] = "float64"
-    device: str = "cpu"
+    device: str = Field("cpu", description="torch device, one the installed torch can use ('cpu', 'cuda', 'cuda:1')")
     evaluation: Literal["algebraic", "simulation"] = Field(
         "algebraic", description="candidate outputs from estimated states (Eq. 6) or by simulation")
     simulation: SimulationConfig = SimulationConfig()
+
+    @field_validator("device")
+    @classmethod
+    def _usable_device(cls, value: str) -> str:
+        """The device exists in this torch build and holds a tensor."""
+        import torch
+
+        try:
+            torch.zeros(1, device=torch.device(value)).sum().item()
+        except Exception as exc:  # torch raises RuntimeError, AssertionError, ... per backend
+            reason = " ".join(str(exc).split()[:12]) or type(exc).__name__
+            raise ValueError(f"{value!r} cannot be used by this torch {torch.__version__} ({reason})") from None
+        return value
 
 
 class Config(_Section):
@@ -133,12 +161,62 @@ class Config(_Section):
     data: DataConfig = DataConfig()
     adaptation: AdaptationConfig = AdaptationConfig()
 
+    @model_validator(mode="after")
+    def _states_named(self):
+        """Mappings keyed by state name name states of the model."""
+        simulation = self.adaptation.simulation
+        for field, names in (("initial_guess", simulation.initial_guess), ("saturation", simulation.saturation),
+                             ("output", simulation.output)):
+            for name in names:
+                if name not in self.model.states:
+                    raise ConfigError(f"adaptation.simulation.{field}.{name}" if field != "output"
+                                      else "adaptation.simulation.output",
+                                      f"{name!r} is not a state of the model ({', '.join(self.model.states)})")
+        return self
+
+
+class Loader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that rejects a key given twice in one mapping and nesting deeper than
+    :data:`MAX_YAML_DEPTH` (which would otherwise end in a ``RecursionError``)."""
+
+    depth = 0
+
+    def compose_node(self, parent, index):
+        self.depth += 1
+        try:
+            if self.depth > MAX_YAML_DEPTH:
+                raise yaml.composer.ComposerError(None, None, f"nested deeper than {MAX_YAML_DEPTH} levels",
+                                                  self.peek_event().start_mark)
+            return super().compose_node(parent, index)
+        finally:
+            self.depth -= 1
+
+    def construct_mapping(self, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            key = self.construct_object(key_node, deep=True)
+            try:
+                duplicated = key in seen
+            except TypeError:  # unhashable: the base class says so
+                continue
+            if duplicated:
+                raise yaml.constructor.ConstructorError(None, None, f"duplicated key {key!r}", key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
+def load_yaml(text: str):
+    """Parse YAML ``text`` with :class:`Loader`."""
+    return yaml.load(text, Loader=Loader)
+
 
 def read_yaml(path: Union[str, Path], what: str = "config") -> dict:
     """A YAML mapping from ``path``; unreadable or malformed files raise :class:`ConfigError`."""
     path = Path(path)
     try:
-        raw = yaml.safe_load(path.read_text())
+        raw = load_yaml(path.read_text())
     except FileNotFoundError:
         raise ConfigError("", f"{path}: no such {what} file") from None
     except yaml.YAMLError as exc:
@@ -157,7 +235,7 @@ def validate(schema: type[BaseModel], raw: dict, origin: str):
     except pydantic.ValidationError as exc:
         error = exc.errors()[0]
         key = ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in error["loc"]).replace(".[", "[")
-        raise ConfigError(key, f"{error['msg']} (in {origin})") from None
+        raise ConfigError(key, f"{error['msg'].removeprefix('Value error, ')} (in {origin})") from None
 
 
 def load_config(source: Union[str, Path, dict], overrides: list[str] = ()) -> Config:
@@ -192,7 +270,7 @@ def _apply_overrides(raw: dict, overrides) -> dict:
             if not isinstance(node, dict):
                 raise ConfigError(key, f"{part!r} is not a section")
         try:
-            node[parts[-1]] = yaml.safe_load(value)
+            node[parts[-1]] = load_yaml(value)
         except yaml.YAMLError as exc:
             raise ConfigError(key, f"malformed value {value!r}{_yaml_place(exc)}") from None
     return raw
