@@ -60,13 +60,13 @@ def load_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str = ".
         return simulated_dataset(config, spec, dtype), None
     base_dir = Path(base_dir)
     table, source = (as_frame(frame, "data frame") if frame is not None
-                     else read_frame(base_dir / config.file))
+                     else read_frame(base_dir / config.file, base_dir))
     train = measured_dataset(select_range(table, config.train, config, source, "data.train"),
                              config, spec, f"{source} (data.train)", dtype)
     validation = None
     if validation_frame is not None or config.validation_file is not None:
         held, held_source = (as_frame(validation_frame, "validation frame") if validation_frame is not None
-                             else read_frame(base_dir / config.validation_file))
+                             else read_frame(base_dir / config.validation_file, base_dir))
         validation = measured_dataset(held, config, spec, held_source, dtype)
     elif config.validation is not None:
         part = select_range(table, config.validation, config, source, "data.validation")
@@ -96,9 +96,10 @@ def as_frame(data: Table, source: str) -> tuple[pd.DataFrame, str]:
     return frame, source
 
 
-def read_frame(path: Path) -> tuple[pd.DataFrame, str]:
+def read_frame(path: Path, folder: Path | None = None) -> tuple[pd.DataFrame, str]:
     """Read a CSV or Parquet file. CSV rows are indexed by their line in the file; unnamed
-    empty columns (trailing commas) are dropped."""
+    empty columns (trailing commas) are dropped. Error messages list the file's column names only
+    when it lies inside ``folder`` (the config's): nothing of a file elsewhere is ever echoed."""
     source = str(path)
     if not path.is_file():
         raise DataError(f"{source}: no such data file")
@@ -120,7 +121,9 @@ def read_frame(path: Path) -> tuple[pd.DataFrame, str]:
         kind = "Parquet" if parquet else "CSV"
         raise DataError(f"{source}: cannot read as {kind}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
     keep = [c for c in frame.columns if not (str(c).startswith("Unnamed") and frame[c].isna().all())]
-    return frame.loc[:, keep], source
+    frame = frame.loc[:, keep]
+    frame.attrs["private"] = folder is None or not path.resolve().is_relative_to(Path(folder).resolve())
+    return frame, source
 
 
 def _data_lines(path: Path) -> list[int]:
@@ -146,7 +149,8 @@ def column(frame: pd.DataFrame, name: str, source: str, key: str) -> np.ndarray:
         lower = {n.lower(): n for n in names}
         close = difflib.get_close_matches(str(name).lower(), list(lower), n=1)
         hint = f"; did you mean {lower[close[0]]!r}?" if close else ""
-        raise DataError(f"{source}: no column {name!r} (asked for by {key}); columns are {names}{hint}")
+        listing = "" if frame.attrs.get("private") else f"; columns are {names}{hint}"
+        raise DataError(f"{source}: no column {name!r} (asked for by {key}){listing}")
     raw = frame[name]
     values = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=float)
     for bad, what in ((raw.isna().to_numpy(), "missing or NaN"),
