@@ -165,12 +165,10 @@ class Config(_Section):
     def _states_named(self):
         """Mappings keyed by state name name states of the model."""
         simulation = self.adaptation.simulation
-        for field, names in (("initial_guess", simulation.initial_guess), ("saturation", simulation.saturation),
-                             ("output", simulation.output)):
+        for field, names in (("initial_guess", simulation.initial_guess), ("saturation", simulation.saturation)):
             for name in names:
                 if name not in self.model.states:
-                    raise ConfigError(f"adaptation.simulation.{field}.{name}" if field != "output"
-                                      else "adaptation.simulation.output",
+                    raise ConfigError(f"adaptation.simulation.{field}.{name}",
                                       f"{name!r} is not a state of the model ({', '.join(self.model.states)})")
         return self
 
