@@ -162,14 +162,12 @@ class Config(_Section):
     adaptation: AdaptationConfig = AdaptationConfig()
 
     @model_validator(mode="after")
-    def _states_named(self):
-        """Mappings keyed by state name name states of the model."""
-        simulation = self.adaptation.simulation
-        for field, names in (("initial_guess", simulation.initial_guess), ("saturation", simulation.saturation)):
-            for name in names:
-                if name not in self.model.states:
-                    raise ConfigError(f"adaptation.simulation.{field}.{name}",
-                                      f"{name!r} is not a state of the model ({', '.join(self.model.states)})")
+    def _initial_guess_of_states(self):
+        """``adaptation.simulation.initial_guess`` names states of the model."""
+        for name in self.adaptation.simulation.initial_guess:
+            if name not in self.model.states:
+                raise ConfigError(f"adaptation.simulation.initial_guess.{name}",
+                                  f"{name!r} is not a state of the model ({', '.join(self.model.states)})")
         return self
 
 
