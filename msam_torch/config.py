@@ -9,16 +9,18 @@ Values are data: YAML is read with a ``yaml.SafeLoader`` and no string is ever e
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import Annotated, Literal, Optional, Union
 
 import pydantic
 import yaml
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
 
 from .errors import ConfigError
 
 MAX_YAML_DEPTH = 64
+_BRANCH = re.compile(r"^(str|int|float|bool|[a-z-]+\[.*[a-z].*\])$")  # pydantic's labels of union branches in a location
 
 
 def _within_float64(value):
@@ -31,7 +33,13 @@ def _within_float64(value):
     return value
 
 
-Number = Annotated[Union[float, int], AfterValidator(_within_float64)]
+def _not_boolean(value):
+    if isinstance(value, bool):
+        raise ValueError("must be a number, not a boolean")
+    return value
+
+
+Number = Annotated[Union[float, int], BeforeValidator(_not_boolean), AfterValidator(_within_float64)]
 
 
 class _Section(BaseModel):
@@ -225,12 +233,16 @@ def read_yaml(path: Union[str, Path], what: str = "config") -> dict:
 
 
 def validate(schema: type[BaseModel], raw: dict, origin: str):
-    """``schema.model_validate(raw)``; the first problem raises :class:`ConfigError` with its key path."""
+    """``schema.model_validate(raw)``; the first problem raises :class:`ConfigError` with its key path
+    (a value's own check, such as finiteness, is preferred to the type mismatches of a union's
+    other branches, whose names are left out of the path)."""
     try:
         return schema.model_validate(raw)
     except pydantic.ValidationError as exc:
-        error = exc.errors()[0]
-        key = ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in error["loc"]).replace(".[", "[")
+        errors = exc.errors()
+        error = next((e for e in errors if e["type"] == "value_error"), errors[0])
+        loc = [p for p in error["loc"] if not (isinstance(p, str) and _BRANCH.match(p))]
+        key = ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in loc).replace(".[", "[")
         raise ConfigError(key, f"{error['msg'].removeprefix('Value error, ')} (in {origin})") from None
 
 

@@ -336,6 +336,7 @@ def simulated_dataset(config: DataConfig, spec: ModelSpec, dtype) -> Dataset:
     info = {"source": f"system:{config.system}", "noise": config.noise, "seed": config.seed}
     if config.derivatives == "exact" and config.noise == 0:
         signals = {k: torch.as_tensor(v, dtype=dtype) for k, v in simulated.items()}
+        check_variation(spec, signals, info["source"])
         return Dataset(signals, {**info, "samples": int(simulated["t"].size), "derivatives": "exact"})
     if config.derivatives == "exact":
         raise ConfigError("data.derivatives", "with noise, derivatives must be estimated: choose one of "
