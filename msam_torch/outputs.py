@@ -45,7 +45,8 @@ def check_folder(out: str | Path, key: str = "--out", belongs: Callable[[Path], 
 def locked(out: str | Path, key: str = "--out") -> Iterator[Path]:
     """Hold ``.<name>.lock`` beside ``out`` for the block; a second holder refuses at once.
 
-    Leftovers of killed runs (hidden staging folders beside ``out``) are removed on entry."""
+    Leftovers of killed runs (hidden staging folders beside ``out``, temporary files of
+    :func:`write_atomic` inside it) are removed on entry."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     lock = out.parent / f".{out.name}.lock"
@@ -66,6 +67,8 @@ def locked(out: str | Path, key: str = "--out") -> Iterator[Path]:
     try:
         for stale in out.parent.glob(f".{out.name}.partial-*"):
             shutil.rmtree(stale, ignore_errors=True)
+        for stale in out.glob(".*.tmp") if out.is_dir() else ():
+            stale.unlink(missing_ok=True)
         yield out
     finally:
         lock.unlink(missing_ok=True)
