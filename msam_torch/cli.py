@@ -1,8 +1,11 @@
 """Command line: ``msam run CONFIG [--out DIR] [key=value ...]`` and
 ``msam diagnose CONFIG [--data FILE] [--validate FILE] [--out DIR] [key=value ...]``.
 
-Errors in the user's input print one line naming the place (key, file, column, row) and exit
-with status 2, without a traceback. Nothing is written unless the run succeeds.
+Errors in the user's input print one line naming the place (key, file, column, row, option) and
+exit with status 2, without a traceback; a run that learnt nothing exits with 3 (its result
+written and saying so); a bug prints one line and where its traceback is, and exits with 1;
+Ctrl-C exits with 130. The output folder is checked and locked before the run; a failed run
+leaves nothing behind, and a diagnosis replaces its files as one set.
 """
 from __future__ import annotations
 
