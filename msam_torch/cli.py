@@ -201,7 +201,7 @@ def _dispatch(args) -> int:
         try:
             return args.handler(args)
         except BaseException as exc:
-            if created and out.is_dir() and not isinstance(exc, (NoInformation, BrokenPipeError)):
+            if created and not isinstance(exc, (NoInformation, BrokenPipeError)):
                 shutil.rmtree(out, ignore_errors=True)
             raise
 

@@ -46,8 +46,10 @@ def locked(out: str | Path, key: str = "--out") -> Iterator[Path]:
     """Hold ``.<name>.lock`` beside ``out`` for the block; a second holder refuses at once.
 
     Leftovers of killed runs (hidden staging folders beside ``out``, temporary files of
-    :func:`write_atomic` inside it) are removed on entry."""
+    :func:`write_atomic` inside it) are removed on entry; folders made to hold the lock are
+    removed on exit if they stayed empty."""
     out = Path(out)
+    made = [p for p in out.parents if not p.exists()]
     out.parent.mkdir(parents=True, exist_ok=True)
     lock = out.parent / f".{out.name}.lock"
     while True:
@@ -73,6 +75,11 @@ def locked(out: str | Path, key: str = "--out") -> Iterator[Path]:
     finally:
         lock.unlink(missing_ok=True)
         handle.close()
+        for folder in made:
+            try:
+                folder.rmdir()
+            except OSError:  # not empty: it holds the outputs
+                break
 
 
 @contextmanager
