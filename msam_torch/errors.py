@@ -19,7 +19,8 @@ class ConfigError(MSAMError):
 
     def __init__(self, key: str, message: str):
         self.key = key
-        super().__init__(f"{key}: {message}" if key else message)
+        shown = key if key.isprintable() else ascii(key)  # a key typed with line breaks stays on one line
+        super().__init__(f"{shown}: {message}" if key else message)
 
 
 class DataError(MSAMError):
