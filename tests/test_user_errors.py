@@ -124,11 +124,13 @@ def secret_outside(tmp_path):
     return measured(tmp_path, folder="project", edit=lambda c: c["data"].update(file="../secret.csv"))
 
 
-def diverging(tmp_path):
-    def edit(raw):
-        for c in raw["model"]["equations"][0]["components"][:2]:
-            c["start"] = 300
-    return bundled(tmp_path, edit)
+def diverging(start):
+    def build(tmp_path):
+        def edit(raw):
+            for c in raw["model"]["equations"][0]["components"][:2]:
+                c["start"] = start
+        return bundled(tmp_path, edit)
+    return build
 
 
 ROOT_CANNOT_BE_REFUSED = pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
@@ -327,7 +329,9 @@ CORPUS: dict[str, dict[str, tuple]] = {
         "outside file, diagnose": (secret_outside, [], 2, ["secret.csv", "no column"], "diagnose"),
     },
     "nothing learnt": {
-        "every candidate diverged": (diverging, [], 3, ["every one of the 4 candidates diverged", "result.json"]),
+        "every candidate diverged (starts 300)": (diverging(300), [], 3, ["every one of the 4 candidates diverged",
+                                                                          "result.json"]),
+        "every candidate diverged (starts 1e6)": (diverging(1e6), [], 3, ["candidates diverged"]),
     },
 }
 if not CUDA:
