@@ -13,7 +13,6 @@ from pathlib import Path
 
 from . import __version__
 from .allocator import keep_freed_memory
-from .config import dump_config, load_config
 from .errors import MSAMError
 
 EXIT_INPUT_ERROR = 2
@@ -23,6 +22,7 @@ def _run(args) -> int:
     from tqdm.auto import tqdm
 
     from .api import adapt, candidate_label
+    from .config import dump_config, load_config
     from .tracking import TensorBoardTracker
 
     config = load_config(args.config, args.overrides)
