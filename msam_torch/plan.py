@@ -49,7 +49,7 @@ def with_strategies(config: Config, **strategies) -> Config:
     unknown = sorted(set(strategies) - set(SECTIONS))
     if unknown:
         raise TypeError(f"unknown strategy option {', '.join(unknown)} (known: {', '.join(SECTIONS)})")
-    raw = config.model_dump()
+    raw = {section: dict(getattr(config, section)) for section in type(config).model_fields}  # objects kept
     for key, value in strategies.items():
         raw[SECTIONS[key]][key] = value
     return validate(Config, raw, "strategy arguments")

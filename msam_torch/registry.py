@@ -79,7 +79,7 @@ def label(value) -> str:
 class Choice:
     """Pydantic field annotation: a registered name of ``registry`` or an object satisfying its
     protocol. Names are checked against the registry when a config is validated; an object is kept
-    as it is (and written as its ``name`` in JSON and YAML)."""
+    as it is, and written as its ``name`` in JSON (``model_dump(mode="json")``: results, resolved configs)."""
 
     registry: Registry
 
