@@ -3,8 +3,9 @@
 Per candidate (``c003`` = candidate 3 of the round robin; the ranking in ``result.json`` and the
 ``candidates`` text panel map indices to adjustments): ``fitness``, ``sum_abs_error``, ``rho``,
 ``gamma_<i>``, ``mu``, ``cond_scaled`` and ``cond_unscaled`` (``cond(Phi^T Phi)`` with and
-without dM scaling; attaching the tracker switches on the trainer's ``diagnostics``). Tags are ``<target>/<stage>/<measure>/c<index>``. Only trial 0 is logged;
-with more than ``max_candidates`` candidates only the best ``max_candidates`` by current fitness are.
+without dM scaling; attaching the tracker switches on the trainer's ``diagnostics``). Tags are
+``<target>/<stage>/<measure>/c<index>``. Only trial 0 is logged; with more than
+``max_candidates`` candidates only the best ``max_candidates`` by current fitness are.
 """
 from __future__ import annotations
 
