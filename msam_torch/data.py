@@ -91,10 +91,14 @@ def resolve_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str =
         if value is not None and not isinstance(value, (str, Path, pd.DataFrame, Mapping, Dataset)):
             raise DataError(f"{key}: expected a CSV/Parquet path, a pandas DataFrame, a mapping of column name to "
                             f"array or a Dataset, got {type(value).__name__}")
+    read_whole = validation is not None and not isinstance(validation, Dataset)
     if isinstance(data, Dataset):
-        if validation is not None and not isinstance(validation, Dataset):
+        if read_whole:
             raise DataError("validation: with data given as a Dataset, give the held-out data as a Dataset too")
         return data, validation
+    if read_whole and data is None and config.system is not None:
+        raise DataError("validation: held-out data from a file or table need measured training data "
+                        f"(data.file or the data argument), not the simulated system {config.system!r}")
     update = {}
     if isinstance(data, (str, Path)):
         update.update(file=str(Path(data).resolve()), system=None)

@@ -71,6 +71,8 @@ def test_a_wrong_data_argument_is_an_error_naming_it():
     dataset, _ = resolve_datasets(load_config(CONFIG).data, spec, data=train)
     with pytest.raises(MSAMError, match="^validation: with data given as a Dataset"):
         diagnose(CONFIG, data=dataset, validation=held, options=OPTIONS)
+    with pytest.raises(DataError, match="^validation: held-out data from a file or table need measured training data"):
+        adapt({"model": CASE.model, "data": {"system": CASE.system}}, QUICK, validation=held)
 
 
 def test_verdicts_render_the_report_text():

@@ -42,35 +42,43 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, held_
                       parameters: dict, options: DiagnoseOptions, generator: torch.Generator) -> EquationDiagnosis:
     """The stages of the diagnosis of ``equation`` (module docstring); ``generator`` draws the
     bootstrap trials."""
+    # weak-form rows of the equation extended by a copy of every adjustable component
     extended = extended_equation(equation)
     weak = WeakForm.build(extended, train.signals, None if held_out is None else held_out.signals,
                           options.half_width, options.quadrature_samples, options.blocks)
     t = weak.signals["t"]
+    # every hypothesis fitted at once, scored on the held-out rows
     hypotheses = enumerate_hypotheses(equation)
     choices, starts = encode(equation, hypotheses, t.device)
     step_options = StepOptions(scaling="gauss_newton", step_size="one", theta="varpro", damping=options.damping)
     original = fit(weak.data, choices, starts, step_options, options.steps)
     rmse = heldout_rmse(weak.val_data, weak.val_rows, choices, original)[0]  # (C,)
 
+    # bootstrap trials: time blocks and measurement noise
     source, order = target_source(extended, weak.signals)
     noise = float(train.info.get("noise_level", {}).get(source, 0.0) or 0.0)
     boot = bootstrap(weak, choices, original, rmse, noise, order, options, step_options, generator)
 
+    # catalogue names, exponents snapped into an entry's interval where that keeps the improvement
     nominal = spec.theta(equation, parameters).to(t)
     names, snapped = snapped_names(equation, hypotheses, weak, weak.data, choices, original, rmse.unsqueeze(0),
                                    nominal, options.snap_keep)
     names, snapped = names[0], snapped[0]
 
+    # null rule on the best effect; how often it wins the bootstrap trials
     is_effect = torch.tensor([h.kind != "retuned" for h in hypotheses], device=t.device)
     best = int(confidence.best_effect(rmse, is_effect))
     target_rms = weak.target_rms
     is_significant = bool(confidence.significant(rmse[best], rmse[0], target_rms, options.relative, options.absolute))
     outcome = names[best] if is_significant else Verdict.NO_GAP.text()
-    trial_outcomes = [] if boot is None else confidence.outcomes(
-        snapped_names(equation, hypotheses, weak, boot.data, choices, boot.fitted, boot.rmse, nominal,
-                      options.snap_keep)[0], boot.rmse, is_effect, target_rms, options)
+    trial_outcomes = []
+    if boot is not None:
+        boot_names, _ = snapped_names(equation, hypotheses, weak, boot.data, choices, boot.fitted, boot.rmse, nominal,
+                                      options.snap_keep)
+        trial_outcomes = confidence.outcomes(boot_names, boot.rmse, is_effect, target_rms, options)
     sure = confidence.summary(rmse, names, best, is_significant, outcome, trial_outcomes)
 
+    # verdict (with the residual structure the effect leaves), and where the starting model fails
     structure = structure_left(equation, weak, choices, original, best)
     kind = equation_verdict(is_significant, outcome != catalogue.NOT_CATALOGUED, sure["win_frequency"], structure,
                             options)
