@@ -9,7 +9,7 @@ import torch
 
 from .candidates import EquationData, equation_choices
 from .config import Config, load_config
-from .data import Table, load_datasets
+from .data import DataArgument, resolve_datasets
 from .plan import Plan, make_trainer, prepare
 from .plan import step_options  # noqa: F401  (read from here by msam_torch.simulation_mode)
 from .result import EquationResult, RunResult, format_component, format_equation
@@ -27,13 +27,15 @@ def nominal_parameters(config: Config, spec: ModelSpec) -> dict:
 
 def adapt(config: Config | dict | str, overrides: list[str] = (),
           on_trainer: Callable[[Trainer, Equation], None] | None = None, base_dir: str | Path | None = None,
-          data: Table | None = None, validation: Table | None = None,
+          data: DataArgument = None, validation: DataArgument = None,
           trainer_factory: Callable[[Plan], Trainer] | None = None, **strategies) -> RunResult:
     """Run Algorithm 1 on each state equation; ``on_trainer`` may attach callbacks.
 
     Data file paths are relative to ``base_dir`` (default: the config file's folder). ``data``
-    (and ``validation``) give the measurements in memory instead of ``data.file``: a pandas
-    DataFrame or a mapping of column name to 1-D array or tensor, read through ``data.columns``.
+    (and ``validation``) replace the config's record (held-out record): a CSV/Parquet path, a
+    pandas DataFrame or a mapping of column name to 1-D array or tensor, read through the
+    config's ``data`` section, or a :class:`~msam_torch.data.Dataset` (see
+    :func:`~msam_torch.data.resolve_datasets`).
     ``trainer_factory`` builds the trainer from the :class:`~msam_torch.plan.Plan` (default
     :func:`~msam_torch.plan.make_trainer`; see :mod:`msam_torch.distributed` for the round robin
     sharded over processes). ``strategies``: ``derivatives``, ``evaluation``, ``step_size`` or
@@ -49,8 +51,7 @@ def adapt(config: Config | dict | str, overrides: list[str] = (),
         from .simulation_mode import adapt_simulation
 
         return adapt_simulation(config, spec, nominal_parameters(config, spec), Path(base_dir), on_trainer)
-    train, held_out = load_datasets(config.data, spec, base_dir, dtype=dtype, frame=data, validation_frame=validation,
-                                    estimator=plan.derivatives)
+    train, held_out = resolve_datasets(config.data, spec, base_dir, dtype, data, validation, plan.derivatives)
     signals = {k: v.to(device) for k, v in train.signals.items()}
     provenance = train.info if held_out is None else {**train.info, "validation": held_out.info}
     parameters = nominal_parameters(config, spec)

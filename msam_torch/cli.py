@@ -77,7 +77,7 @@ def _diagnose(args) -> int:
         import torch
 
         torch.set_num_threads(args.threads)
-    report = diagnose(args.config, data=args.data, validate=args.validate, overrides=args.overrides)
+    report = diagnose(args.config, data=args.data, validation=args.validate, overrides=args.overrides)
     out = Path(args.out or Path("runs") / f"{Path(args.config).stem}_diagnosis")
     path = report.save(out)
     print(report)

@@ -55,6 +55,9 @@ def derivative_estimator(config: DataConfig, in_memory: bool = False) -> Derivat
     return configured(chosen, config.window, config.cutoff)
 
 
+DataArgument = Union[str, Path, Table, Dataset, None]
+
+
 def load_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str = ".", dtype=torch.float64,
                   frame: Table | None = None, validation_frame: Table | None = None,
                   estimator: DerivativeEstimator | None = None) -> tuple[Dataset, Dataset | None]:
@@ -82,6 +85,41 @@ def load_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str = ".
         part = select_range(table, config.validation, config, source, "data.validation")
         validation = measured_dataset(part, config, spec, f"{source} (data.validation)", dtype, estimator)
     return train, validation
+
+
+def resolve_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str = ".", dtype=torch.float64,
+                     data: DataArgument = None, validation: DataArgument = None,
+                     estimator: DerivativeEstimator | None = None) -> tuple[Dataset, Dataset | None]:
+    """Training and held-out datasets from the data arguments of ``adapt`` and ``diagnose``.
+
+    ``data`` replaces the record of ``data.file``/``data.system``: a CSV/Parquet path (relative
+    to the working directory), a pandas DataFrame or a mapping of column to 1-D array or tensor
+    (read through ``config``: columns, time, the ``train`` and ``validation`` ranges, estimator),
+    or a :class:`Dataset` (used as it is, nothing held out). ``validation`` replaces the held-out
+    record (the ``validation`` range or ``validation_file``) in the same forms, read whole.
+    Default (None): the config's own. ``estimator`` as in :func:`load_datasets`."""
+    for key, value in (("data", data), ("validation", validation)):
+        if value is not None and not isinstance(value, (str, Path, pd.DataFrame, Mapping, Dataset)):
+            raise DataError(f"{key}: expected a CSV/Parquet path, a pandas DataFrame, a mapping of column name to "
+                            f"array or a Dataset, got {type(value).__name__}")
+    read_whole = validation is not None and not isinstance(validation, Dataset)
+    if isinstance(data, Dataset):
+        if read_whole:
+            raise DataError("validation: with data given as a Dataset, give the held-out data as a Dataset too")
+        return data, validation
+    if read_whole and data is None and config.system is not None:
+        raise DataError("validation: held-out data from a file or table need measured training data "
+                        f"(data.file or the data argument), not the simulated system {config.system!r}")
+    update = {}
+    if isinstance(data, (str, Path)):
+        update.update(file=str(Path(data).resolve()), system=None)
+    if isinstance(validation, (str, Path)):
+        update.update(validation_file=str(Path(validation).resolve()), validation=None)
+    frame = data if isinstance(data, (pd.DataFrame, Mapping)) else None
+    validation_frame = validation if isinstance(validation, (pd.DataFrame, Mapping)) else None
+    train, held_out = load_datasets(config.model_copy(update=update), spec, base_dir, dtype, frame,
+                                    validation_frame, estimator)
+    return train, validation if isinstance(validation, Dataset) else held_out
 
 
 def as_frame(data: Table, source: str) -> tuple[pd.DataFrame, str]:
