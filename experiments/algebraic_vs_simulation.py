@@ -33,10 +33,12 @@ import pandas as pd
 import torch
 
 from experiments.common import ROOT, main_guard, markdown_table, set_threads, write_csv, write_text
-from msam_torch.api import make_trainer, nominal_parameters, step_options
+from msam_torch.api import nominal_parameters
 from msam_torch.candidates import EquationData
 from msam_torch.config import load_config
 from msam_torch.data import load_datasets
+from msam_torch.plan import make_trainer, step_options
+from msam_torch.plan import prepare as plan_of
 from msam_torch.simulation_mode import SimulationEvaluator, groups, prepare
 from msam_torch.spec import ModelSpec
 from msam_torch.trainer import Trainer
@@ -76,7 +78,7 @@ def algebraic(config, spec, sets) -> tuple[list, list, list]:
         data = EquationData.build(equation, train.signals, config.adaptation.normalize)
         data = data.expand_trials(len(sets))
         theta = torch.stack([spec.theta(equation, p) for p in sets])
-        fit = make_trainer(config).fit(data, theta[:, list(equation.adjustable)], theta[:, list(equation.fixed)])
+        fit = make_trainer(plan_of(config)).fit(data, theta[:, list(equation.adjustable)], theta[:, list(equation.fixed)])
         for k in range(len(sets)):
             labels[k].append([equation.adjustments[int(f)].text for f in fit.choices[fit.winner[k]]])
             exponents[k].append(fit.gamma[k].tolist())

@@ -17,8 +17,8 @@ import torch
 from experiments.common import (arguments, dump_config, load_experiment, main_guard, markdown_table, model_config,
                                 protocol_notes, run_protocol, save_figure, tensorboard_scalars, write_csv, write_text)
 from msam_torch.data import load_datasets
+from msam_torch.plan import prepare
 from msam_torch.protocol import fit_equation, trial_parameters
-from msam_torch.spec import ModelSpec
 
 
 def log10(values: torch.Tensor) -> list:
@@ -27,8 +27,9 @@ def log10(values: torch.Tensor) -> list:
 
 def compute_factory(experiment, config_path):
     def compute(config, trials):
-        spec = ModelSpec.from_config(config.model)
-        train, _ = load_datasets(config.data, spec, config_path.parent)
+        plan = prepare(config)
+        spec = plan.spec
+        train, _ = load_datasets(config.data, spec, config_path.parent, estimator=plan.derivatives)
         parameters = [trial_parameters(spec.parameters, t, experiment.seed) for t in trials]
         records = [{"level": t.level, "index": t.index, "parameters": p, "equations": []} for t, p in zip(trials, parameters)]
         for equation in spec.equations:
@@ -36,10 +37,11 @@ def compute_factory(experiment, config_path):
 
             def on_trainer(trainer, eq):
                 groups.append({})
+                trainer.diagnostics = True  # the condition numbers are what this figure records
                 trainer.add_callback("round_robin_step", lambda t, iteration, offset, result, **p: groups[-1].setdefault(
                     iteration, {}).update({offset: (result.cond_scaled, result.cond_unscaled)}))
 
-            fit, _, _ = fit_equation(config, spec, equation, train.signals, parameters, on_trainer=on_trainer,
+            fit, _, _ = fit_equation(plan, equation, train.signals, parameters, on_trainer=on_trainer,
                                      max_elements=experiment.max_elements)
             texts = [f.text for f in equation.adjustments]
             truth = experiment.equations[equation.target].truth

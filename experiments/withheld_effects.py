@@ -31,7 +31,7 @@ import torch
 
 from msam_torch.config import DataConfig, load_config
 from msam_torch.data import build_dataset
-from msam_torch.diagnose import NO_GAP, NOT_EXPLAINED, DiagnoseOptions, diagnose
+from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
 from msam_torch.diagnose.catalogue import NOT_CATALOGUED, name_effect
 from msam_torch.api import nominal_parameters
 from msam_torch.spec import ModelSpec
@@ -76,13 +76,13 @@ def datasets(case: str, noise: float, seed: int, spec: ModelSpec, window: int | 
 
 def expected_verdict(case: str) -> str:
     w = WITHHELD[case]
-    return f"gap explained by {w.expected}" if w.kind == "in_catalogue" else w.expected
+    return Verdict.EXPLAINED.text(w.expected) if w.kind == "in_catalogue" else w.expected
 
 
 def success(case: str, verdict: str) -> bool:
     """In-catalogue and null: the exact verdict; out-of-catalogue: no confident (wrong) name."""
     if WITHHELD[case].kind == "out_of_catalogue":
-        return not verdict.startswith("gap explained")
+        return not verdict.startswith(Verdict.EXPLAINED.text(""))
     return verdict == expected_verdict(case)
 
 
@@ -117,11 +117,11 @@ def sindy_verdict(spec: ModelSpec, parameters: dict, train) -> str:
     contribution = np.abs(coef) * spread
     nonlinear = [k for k, lab in enumerate(labels) if lab is not None and coef[k] != 0]
     if not nonlinear:
-        return NO_GAP
+        return Verdict.NO_GAP.text()
     k = max(nonlinear, key=lambda k: contribution[k])
     i, f, g = labels[k]
     name = name_effect(equation, i, f, g, float(coef[k]), float(theta[i]))
-    return NOT_EXPLAINED if name == NOT_CATALOGUED else f"gap explained by {name}"
+    return Verdict.NOT_EXPLAINED.text() if name == NOT_CATALOGUED else Verdict.EXPLAINED.text(name)
 
 
 def run_trial(args) -> dict:
@@ -132,7 +132,7 @@ def run_trial(args) -> dict:
     spec = ModelSpec.from_config(config.model)
     train, held_out = datasets(case, noise, seed, spec)
     started = time.perf_counter()
-    report = diagnose(config, data=train, validate=held_out)
+    report = diagnose(config, data=train, validation=held_out)
     seconds = time.perf_counter() - started
     gap = report.equations[0]
     free = report.measures["free_run"]["held_out"]["nrmse"]
@@ -179,7 +179,7 @@ def localisation_trial(args) -> dict:
     config = load_config({"model": w.model, "data": {"parametric_error": 0.25, "seed": seed}})
     spec = ModelSpec.from_config(config.model)
     train, held_out = datasets(case, noise, seed, spec, window)
-    report = diagnose(config, data=train, validate=held_out, options=DiagnoseOptions(bootstrap=0, free_run=False))
+    report = diagnose(config, data=train, validation=held_out, options=DiagnoseOptions(bootstrap=0, free_run=False))
     return {"case": case, "noise": noise, "window": window, **_iou(w.active, report.equations[0].where, train)}
 
 
@@ -194,7 +194,7 @@ def timing(repeats: int = 3) -> float:
     times = []
     for _ in range(repeats + 1):
         started = time.perf_counter()
-        diagnose(config, data=train, validate=held_out)
+        diagnose(config, data=train, validation=held_out)
         times.append(time.perf_counter() - started)
     return statistics.median(times[1:])
 

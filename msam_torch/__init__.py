@@ -1,13 +1,48 @@
-"""msam-torch: physics-first model repair with the Model Structure Adaptation Method."""
+"""msam-torch: physics-first model repair with the Model Structure Adaptation Method.
+
+The public names below are imported on first use (PEP 562), so ``import msam_torch`` and
+``msam --help`` do not load torch, pandas or scipy; ``from msam_torch import adapt`` works as usual.
+"""
+from __future__ import annotations
+
+from importlib import import_module
+from typing import TYPE_CHECKING
+
 __version__ = "0.1.0"
 
-from .api import adapt
-from .candidates import Candidate, EquationData
-from .config import Config, load_config
-from .errors import ConfigError, DataError, MSAMError
-from .spec import ModelSpec
-from .step import StepOptions
-from .trainer import Trainer
+_HOME = {  # public name -> the submodule that defines it
+    "adapt": "api",
+    "Candidate": "candidates",
+    "EquationData": "candidates",
+    "Config": "config",
+    "load_config": "config",
+    "ConfigError": "errors",
+    "DataError": "errors",
+    "MSAMError": "errors",
+    "ModelSpec": "spec",
+    "StepOptions": "step",
+    "Trainer": "trainer",
+}
 
-__all__ = ["adapt", "Candidate", "EquationData", "Config", "load_config", "ConfigError", "DataError",
-           "MSAMError", "ModelSpec", "StepOptions", "Trainer", "__version__"]
+__all__ = [*_HOME, "__version__"]
+
+if TYPE_CHECKING:  # the same names for type checkers and the API docs
+    from .api import adapt
+    from .candidates import Candidate, EquationData
+    from .config import Config, load_config
+    from .errors import ConfigError, DataError, MSAMError
+    from .spec import ModelSpec
+    from .step import StepOptions
+    from .trainer import Trainer
+
+
+def __getattr__(name: str):
+    if name not in _HOME:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(f".{_HOME[name]}", __name__), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

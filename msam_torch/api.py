@@ -9,24 +9,14 @@ import torch
 
 from .candidates import EquationData, equation_choices
 from .config import Config, load_config
-from .data import Table, load_datasets
+from .data import DataArgument, resolve_datasets
+from .plan import Plan, make_trainer, prepare
+from .plan import step_options  # noqa: F401  (read from here by msam_torch.simulation_mode)
 from .result import EquationResult, RunResult, format_component, format_equation
 from .spec import Equation, ModelSpec
-from .step import StepOptions
 from .systems import perturb_parameters
-from .trainer import Fit, Trainer
+from .trainer import Algebraic, Fit, Trainer
 from .tuning import Tuned, measure_model, relative_error, tune_adapted, tune_start
-
-
-def step_options(config: Config) -> StepOptions:
-    a = config.adaptation
-    return StepOptions(dgamma=a.dgamma, scaling=a.scaling, step_size=a.step_size, theta=a.theta,
-                       damping=a.damping, gamma_limit=a.gamma_limit)
-
-
-def make_trainer(config: Config) -> Trainer:
-    a = config.adaptation
-    return Trainer(step_options(config), a.round_robin_steps, a.refinement_steps, a.chunk_size)
 
 
 def nominal_parameters(config: Config, spec: ModelSpec) -> dict:
@@ -37,27 +27,31 @@ def nominal_parameters(config: Config, spec: ModelSpec) -> dict:
 
 def adapt(config: Config | dict | str, overrides: list[str] = (),
           on_trainer: Callable[[Trainer, Equation], None] | None = None, base_dir: str | Path | None = None,
-          data: Table | None = None, validation: Table | None = None,
-          trainer_factory: Callable[[Config], Trainer] | None = None) -> RunResult:
+          data: DataArgument = None, validation: DataArgument = None,
+          trainer_factory: Callable[[Plan], Trainer] | None = None, **strategies) -> RunResult:
     """Run Algorithm 1 on each state equation; ``on_trainer`` may attach callbacks.
 
     Data file paths are relative to ``base_dir`` (default: the config file's folder). ``data``
-    (and ``validation``) give the measurements in memory instead of ``data.file``: a pandas
-    DataFrame or a mapping of column name to 1-D array or tensor, read through ``data.columns``.
-    ``trainer_factory`` builds the trainer (default :func:`make_trainer`; see
-    :mod:`msam_torch.distributed` for the round robin sharded over processes)."""
+    (and ``validation``) replace the config's record (held-out record): a CSV/Parquet path, a
+    pandas DataFrame or a mapping of column name to 1-D array or tensor, read through the
+    config's ``data`` section, or a :class:`~msam_torch.data.Dataset` (see
+    :func:`~msam_torch.data.resolve_datasets`).
+    ``trainer_factory`` builds the trainer from the :class:`~msam_torch.plan.Plan` (default
+    :func:`~msam_torch.plan.make_trainer`; see :mod:`msam_torch.distributed` for the round robin
+    sharded over processes). ``strategies``: ``derivatives``, ``evaluation``, ``step_size`` or
+    ``theta`` as objects (or names) in place of the config's, e.g.
+    ``adapt(config, data=frame, derivatives=SavitzkyGolay(window=15))``."""
     if base_dir is None:
         base_dir = Path(config).parent if isinstance(config, (str, Path)) else Path(".")
     if not isinstance(config, Config):
         config = load_config(config, overrides)
-    spec = ModelSpec.from_config(config.model)
-    if config.adaptation.evaluation == "simulation":
+    plan = prepare(config, in_memory=data is not None, **strategies)
+    config, spec, dtype, device = plan.config, plan.spec, plan.dtype, plan.device
+    if not isinstance(plan.evaluator, Algebraic):  # judged by simulation
         from .simulation_mode import adapt_simulation
 
         return adapt_simulation(config, spec, nominal_parameters(config, spec), Path(base_dir), on_trainer)
-    dtype = getattr(torch, config.adaptation.dtype)
-    device = torch.device(config.adaptation.device)
-    train, held_out = load_datasets(config.data, spec, base_dir, dtype=dtype, frame=data, validation_frame=validation)
+    train, held_out = resolve_datasets(config.data, spec, base_dir, dtype, data, validation, plan.derivatives)
     signals = {k: v.to(device) for k, v in train.signals.items()}
     provenance = train.info if held_out is None else {**train.info, "validation": held_out.info}
     parameters = nominal_parameters(config, spec)
@@ -65,7 +59,7 @@ def adapt(config: Config | dict | str, overrides: list[str] = (),
     held_signals = None if held_out is None else {k: v.to(device) for k, v in held_out.signals.items()}
     for equation in spec.equations:
         theta = spec.theta(equation, parameters).to(device=device, dtype=dtype)
-        trainer = (trainer_factory or make_trainer)(config)
+        trainer = (trainer_factory or make_trainer)(plan)
         if on_trainer is not None:
             on_trainer(trainer, equation)
         results += adapt_equation(config, equation, signals, theta, trainer, held_signals)
@@ -92,7 +86,7 @@ def adapt_equation(config: Config, equation: Equation, signals: dict, theta: tor
     tuned_start = tune_start(data, theta_fixed, a.hold_fixed)
     if a.tune_theta:
         theta_adjustable, theta_fixed = tuned_start.theta, tuned_start.theta_fixed
-    trainer = make_trainer(config) if trainer is None else trainer
+    trainer = make_trainer(prepare(config)) if trainer is None else trainer
     start = torch.tensor([equation.components[i].start for i in equation.adjustable], dtype=data.y.dtype,
                          device=data.y.device)
     fit = trainer.fit(data, theta_adjustable, theta_fixed, start, choices=equation_choices(equation, data.y.device))

@@ -20,7 +20,6 @@ from pathlib import Path
 
 from . import __version__
 from .allocator import keep_freed_memory
-from .config import dump_config, load_config
 from .errors import MSAMError, NoInformation
 
 EXIT_BUG = 1
@@ -31,6 +30,7 @@ def _run(args) -> int:
     from tqdm.auto import tqdm
 
     from .api import adapt, candidate_label
+    from .config import dump_config, load_config
     from .tracking import TensorBoardTracker
 
     config = load_config(args.config, args.overrides)
@@ -101,7 +101,7 @@ def _diagnose(args) -> int:
         import torch
 
         torch.set_num_threads(args.threads)
-    report = diagnose(args.config, data=args.data, validate=args.validate, overrides=args.overrides)
+    report = diagnose(args.config, data=args.data, validation=args.validate, overrides=args.overrides)
     out = Path(args.out)
     path = report.save(out)
     print(report)

@@ -11,13 +11,17 @@ from __future__ import annotations
 import math
 import re
 from pathlib import Path
-from typing import Annotated, Literal, Optional, Union
+from typing import Annotated, Any, Literal, Optional, Union
 
 import pydantic
 import yaml
 from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
 
+from .derivatives import ESTIMATORS
 from .errors import ConfigError
+from .evaluators import EVALUATORS
+from .registry import Choice
+from .step_rules import STEP_SIZES, ThetaRule
 
 MAX_YAML_DEPTH = 64
 _BRANCH = re.compile(r"^(str|int|float|bool|[a-z-]+\[.*[a-z].*\])$")  # pydantic's labels of union branches in a location
@@ -95,10 +99,10 @@ class DataConfig(_Section):
     parametric_error: float = Field(0.0, ge=0, description="total relative error of the nominal parameters")
     noise: float = Field(0.0, ge=0, description="simulated measurement noise, as a fraction of each signal's std")
     seed: int = Field(0, ge=0, lt=2**64, description="random seed (0 <= seed < 2**64)")
-    derivatives: Literal["auto", "exact", "savgol", "spline", "loess", "finite_difference", "butterworth",
-                          "interpolating_spline"] = Field(
-        "auto", description="how unmeasured derivatives are estimated; 'auto': exact for a noise-free simulated "
-                            "system, else savgol; 'exact': every signal the model reads is given")
+    derivatives: Annotated[Any, Choice(ESTIMATORS)] = Field(
+        "auto", description="how unmeasured derivatives are estimated: a name in msam_torch.derivatives.ESTIMATORS "
+                            "or, from Python, an estimator object; 'auto': exact for a noise-free simulated system, "
+                            "else savgol; 'exact': every signal the model reads is given")
     window: Optional[int] = Field(None, ge=3, description="derivative estimator window in samples "
                                                           "(default: chosen from the noise floor)")
     cutoff: Optional[float] = Field(None, gt=0, description="butterworth cut-off frequency in cycles per time unit "
@@ -136,8 +140,9 @@ class AdaptationConfig(_Section):
     refinement_steps: int = Field(70, ge=0, description="I2")
     dgamma: float = Field(1e-2, gt=0, description="exponent perturbation of Eq. 15-16")
     scaling: Literal["dm", "gauss_newton"] = Field("dm", description="step in dM-scaled units (Eq. 16-18) or in exponent units")
-    step_size: Literal["eq20", "one", "line_search"] = Field("eq20", description="mu by Eq. 20, mu = 1, or backtracking")
-    theta: Literal["fixed", "varpro"] = Field("fixed", description="nominal theta, or re-solved each step (variable projection)")
+    step_size: Annotated[Any, Choice(STEP_SIZES)] = Field(
+        "eq20", description="mu by Eq. 20, mu = 1, or backtracking (msam_torch.step_rules.STEP_SIZES, or a rule object)")
+    theta: ThetaRule = Field(ThetaRule.FIXED, description="nominal theta, or re-solved each step (variable projection)")
     normalize: Literal["none", "rms"] = Field("none", description="divide each adjustment function by its RMS")
     tune_theta: bool = Field(False, description="start from theta re-estimated by least squares on the starting model")
     hold_fixed: bool = Field(False, description="theta re-estimation keeps the fixed components' theta at nominal")
@@ -146,8 +151,9 @@ class AdaptationConfig(_Section):
     chunk_size: int = Field(4096, ge=1, description="candidates per batched chunk (bounds memory)")
     dtype: Literal["float64", "float32"] = "float64"
     device: str = Field("cpu", description="torch device, one the installed torch can use ('cpu', 'cuda', 'cuda:1')")
-    evaluation: Literal["algebraic", "simulation"] = Field(
-        "algebraic", description="candidate outputs from estimated states (Eq. 6) or by simulation")
+    evaluation: Annotated[Any, Choice(EVALUATORS)] = Field(
+        "algebraic", description="candidate outputs from estimated states (Eq. 6) or by simulation "
+                                 "(msam_torch.evaluators.EVALUATORS, or an evaluator object)")
     simulation: SimulationConfig = SimulationConfig()
 
     @field_validator("device")

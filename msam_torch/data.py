@@ -21,7 +21,7 @@ import pandas as pd
 import torch
 
 from .config import DataConfig, RangeConfig
-from .derivatives import METHODS, estimate, noise_level
+from .derivatives import ESTIMATORS, Auto, DerivativeEstimator, Exact, configured, noise_level, takes
 from .errors import ConfigError, DataError
 from .spec import ModelSpec, split_derivative
 from .systems import get_system, simulate
@@ -42,36 +42,84 @@ class Dataset:
         return self.signals["t"]
 
 
+def derivative_estimator(config: DataConfig, in_memory: bool = False) -> DerivativeEstimator:
+    """The estimator of ``data.derivatives`` (a registered name or an estimator object) with
+    ``data.window`` and ``data.cutoff`` set; ``auto`` chosen for the record (exact for a noise-free
+    simulated system, unless the data are given ``in_memory``). The one reader of these keys."""
+    chosen = ESTIMATORS.resolve(config.derivatives)
+    if isinstance(chosen, Auto):
+        chosen = chosen.choose(not in_memory and config.system is not None and config.noise == 0)
+    if config.cutoff is not None and not takes(chosen, "cutoff"):
+        with_cutoff = [n for n in ESTIMATORS.names if takes(ESTIMATORS.create(n), "cutoff")]
+        raise ConfigError("data.cutoff", f"a cut-off applies to derivatives: {', '.join(with_cutoff)}, not {chosen.name!r}")
+    return configured(chosen, config.window, config.cutoff)
+
+
+DataArgument = Union[str, Path, Table, Dataset, None]
+
+
 def load_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str = ".", dtype=torch.float64,
                   frame: Table | None = None, validation_frame: Table | None = None,
-                  ) -> tuple[Dataset, Dataset | None]:
+                  estimator: DerivativeEstimator | None = None) -> tuple[Dataset, Dataset | None]:
     """Training and (if configured) validation datasets for ``spec``.
 
     ``frame`` (and ``validation_frame``) replace ``data.file`` (``data.validation_file``) with an
-    in-memory table; the column mapping, time, ranges and estimator still come from ``config``."""
+    in-memory table; the column mapping, time and ranges still come from ``config``, the
+    derivative ``estimator`` too unless given (:func:`derivative_estimator`)."""
     if frame is None and (config.system is None) == (config.file is None):
         raise ConfigError("data", "give exactly one of 'system' (simulated) or 'file' (measured)")
-    if config.derivatives == "auto":
-        exact = frame is None and config.system is not None and config.noise == 0
-        config = config.model_copy(update={"derivatives": "exact" if exact else "savgol"})
-    if config.cutoff is not None and config.derivatives != "butterworth":
-        raise ConfigError("data.cutoff", f"a cut-off applies to derivatives: butterworth, not {config.derivatives!r}")
+    estimator = derivative_estimator(config, frame is not None) if estimator is None else estimator
     if frame is None and config.system is not None:
-        return simulated_dataset(config, spec, dtype), None
+        return simulated_dataset(config, spec, dtype, estimator), None
     base_dir = Path(base_dir)
     table, source = (as_frame(frame, "data frame") if frame is not None
                      else read_frame(base_dir / config.file, base_dir))
     train = measured_dataset(select_range(table, config.train, config, source, "data.train"),
-                             config, spec, f"{source} (data.train)", dtype)
+                             config, spec, f"{source} (data.train)", dtype, estimator)
     validation = None
     if validation_frame is not None or config.validation_file is not None:
         held, held_source = (as_frame(validation_frame, "validation frame") if validation_frame is not None
                              else read_frame(base_dir / config.validation_file, base_dir))
-        validation = measured_dataset(held, config, spec, held_source, dtype)
+        validation = measured_dataset(held, config, spec, held_source, dtype, estimator)
     elif config.validation is not None:
         part = select_range(table, config.validation, config, source, "data.validation")
-        validation = measured_dataset(part, config, spec, f"{source} (data.validation)", dtype)
+        validation = measured_dataset(part, config, spec, f"{source} (data.validation)", dtype, estimator)
     return train, validation
+
+
+def resolve_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str = ".", dtype=torch.float64,
+                     data: DataArgument = None, validation: DataArgument = None,
+                     estimator: DerivativeEstimator | None = None) -> tuple[Dataset, Dataset | None]:
+    """Training and held-out datasets from the data arguments of ``adapt`` and ``diagnose``.
+
+    ``data`` replaces the record of ``data.file``/``data.system``: a CSV/Parquet path (relative
+    to the working directory), a pandas DataFrame or a mapping of column to 1-D array or tensor
+    (read through ``config``: columns, time, the ``train`` and ``validation`` ranges, estimator),
+    or a :class:`Dataset` (used as it is, nothing held out). ``validation`` replaces the held-out
+    record (the ``validation`` range or ``validation_file``) in the same forms, read whole.
+    Default (None): the config's own. ``estimator`` as in :func:`load_datasets`."""
+    for key, value in (("data", data), ("validation", validation)):
+        if value is not None and not isinstance(value, (str, Path, pd.DataFrame, Mapping, Dataset)):
+            raise DataError(f"{key}: expected a CSV/Parquet path, a pandas DataFrame, a mapping of column name to "
+                            f"array or a Dataset, got {type(value).__name__}")
+    read_whole = validation is not None and not isinstance(validation, Dataset)
+    if isinstance(data, Dataset):
+        if read_whole:
+            raise DataError("validation: with data given as a Dataset, give the held-out data as a Dataset too")
+        return data, validation
+    if read_whole and data is None and config.system is not None:
+        raise DataError("validation: held-out data from a file or table need measured training data "
+                        f"(data.file or the data argument), not the simulated system {config.system!r}")
+    update = {}
+    if isinstance(data, (str, Path)):
+        update.update(file=str(Path(data).resolve()), system=None)
+    if isinstance(validation, (str, Path)):
+        update.update(validation_file=str(Path(validation).resolve()), validation=None)
+    frame = data if isinstance(data, (pd.DataFrame, Mapping)) else None
+    validation_frame = validation if isinstance(validation, (pd.DataFrame, Mapping)) else None
+    train, held_out = load_datasets(config.model_copy(update=update), spec, base_dir, dtype, frame,
+                                    validation_frame, estimator)
+    return train, validation if isinstance(validation, Dataset) else held_out
 
 
 def as_frame(data: Table, source: str) -> tuple[pd.DataFrame, str]:
@@ -188,8 +236,11 @@ def select_range(frame: pd.DataFrame, rng: RangeConfig, config: DataConfig, sour
     return frame.loc[keep]
 
 
-def measured_dataset(frame: pd.DataFrame, config: DataConfig, spec: ModelSpec, source: str, dtype) -> Dataset:
-    """Signals of ``spec`` from a table: time checks, column mapping, resampling, estimation."""
+def measured_dataset(frame: pd.DataFrame, config: DataConfig, spec: ModelSpec, source: str, dtype,
+                     estimator: DerivativeEstimator | None = None) -> Dataset:
+    """Signals of ``spec`` from a table: time checks, column mapping, resampling, estimation
+    (``estimator``: default :func:`derivative_estimator` of ``config``)."""
+    estimator = derivative_estimator(config, True) if estimator is None else estimator
     if len(frame) < 2:
         raise DataError(f"{source}: {len(frame)} sample{'s' if len(frame) != 1 else ''}; need at least 2")
     t = time_axis(frame, config, source)
@@ -201,9 +252,9 @@ def measured_dataset(frame: pd.DataFrame, config: DataConfig, spec: ModelSpec, s
                                                         f"(signals: {', '.join(sorted(spec.signals - {'t'}))})")
         measured[signal] = column(frame, name, source, f"data.columns.{signal}")
     info = {"source": source}
-    estimated = config.derivatives != "exact"
+    estimated = not isinstance(estimator, Exact)
     t, measured, info = check_time(frame, t, measured, source, config, estimated, info)
-    return build_dataset(t, measured, config, spec, info, dtype, source)
+    return build_dataset(t, measured, config, spec, info, dtype, source, estimator)
 
 
 def check_time(frame: pd.DataFrame, t: np.ndarray, measured: dict, source: str, config: DataConfig,
@@ -235,13 +286,16 @@ def check_time(frame: pd.DataFrame, t: np.ndarray, measured: dict, source: str, 
 
 
 def build_dataset(t: np.ndarray, measured: dict[str, np.ndarray], config: DataConfig, spec: ModelSpec,
-                  info: dict, dtype, source: str = "data") -> Dataset:
-    """Estimate every signal ``spec`` reads from the measured ones, then check they vary where
-    the method needs variation (targets for the correlation of Eq. 19, adjustment functions)."""
+                  info: dict, dtype, source: str = "data", estimator: DerivativeEstimator | None = None) -> Dataset:
+    """Estimate every signal ``spec`` reads from the measured ones (``estimator``: default
+    :func:`derivative_estimator` of ``config``), then check they vary where the method needs
+    variation (targets for the correlation of Eq. 19, adjustment functions)."""
+    estimator = derivative_estimator(config, True) if estimator is None else estimator
+    exact = isinstance(estimator, Exact)
     signals = {"t": t}
     estimates = {}
     for name in sorted(spec.signals - {"t"}):
-        if name in measured and (config.derivatives == "exact" or name in spec.inputs):
+        if name in measured and (exact or name in spec.inputs):
             signals[name] = measured[name]
             continue
         base, order = split_derivative(name)
@@ -251,17 +305,17 @@ def build_dataset(t: np.ndarray, measured: dict[str, np.ndarray], config: DataCo
             raise ConfigError("data.columns", f"the model reads {name!r} but no measured column gives {base!r} "
                               f"or a lower derivative of it (measured: {', '.join(sorted(measured)) or 'none'})")
         measured_order, source_name = sources[-1]
-        if config.derivatives == "exact":
+        if exact:
             raise ConfigError("data.derivatives", f"{name!r} is not measured: choose an estimator "
-                              f"({', '.join(METHODS)})")
+                              f"({', '.join(n for n in ESTIMATORS.names if n != estimator.name)})")
         if source_name not in estimates:
             highest = max(split_derivative(s)[1] for s in spec.signals if split_derivative(s)[0] == base) - measured_order
             column_name = config.columns.get(source_name, source_name)
-            estimates[source_name] = estimate(t, measured[source_name], highest, config.derivatives, config.window,
-                                              f"{source}: column {column_name!r} ({source_name})", config.cutoff)
+            estimates[source_name] = estimator.estimate(t, measured[source_name], highest,
+                                                        f"{source}: column {column_name!r} ({source_name})")
         signals[name] = estimates[source_name].values[order - measured_order]
     info = {**info, "samples": int(t.size), "measured": sorted(measured),
-            "derivatives": {k: e.info for k, e in estimates.items()} or config.derivatives,
+            "derivatives": {k: e.info for k, e in estimates.items()} or estimator.name,
             "noise_level": {k: noise_level(v) for k, v in measured.items()}}
     tensors = {k: torch.tensor(np.asarray(v, dtype=float), dtype=dtype) for k, v in signals.items()}
     check_variation(spec, tensors, source)
@@ -327,18 +381,18 @@ def simulated_measurements(config: DataConfig) -> tuple[dict[str, np.ndarray], d
     return simulated, measured
 
 
-def simulated_dataset(config: DataConfig, spec: ModelSpec, dtype) -> Dataset:
+def simulated_dataset(config: DataConfig, spec: ModelSpec, dtype, estimator: DerivativeEstimator) -> Dataset:
     """A controlled case: simulate the true system, add noise to its measured signals, estimate."""
     simulated, measured = simulated_measurements(config)
     missing = sorted(spec.signals - set(simulated))
     if missing:
         raise ConfigError("model", f"system {config.system!r} has no signals {missing} (it has {sorted(simulated)})")
     info = {"source": f"system:{config.system}", "noise": config.noise, "seed": config.seed}
-    if config.derivatives == "exact" and config.noise == 0:
+    if isinstance(estimator, Exact) and config.noise == 0:
         signals = {k: torch.as_tensor(v, dtype=dtype) for k, v in simulated.items()}
         check_variation(spec, signals, info["source"])
-        return Dataset(signals, {**info, "samples": int(simulated["t"].size), "derivatives": "exact"})
-    if config.derivatives == "exact":
+        return Dataset(signals, {**info, "samples": int(simulated["t"].size), "derivatives": estimator.name})
+    if isinstance(estimator, Exact):
         raise ConfigError("data.derivatives", "with noise, derivatives must be estimated: choose one of "
-                          f"{', '.join(METHODS)}")
-    return build_dataset(simulated["t"], measured, config, spec, info, dtype, info["source"])
+                          f"{', '.join(n for n in ESTIMATORS.names if n != estimator.name)}")
+    return build_dataset(simulated["t"], measured, config, spec, info, dtype, info["source"], estimator)

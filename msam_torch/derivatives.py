@@ -1,5 +1,12 @@
 """State and derivative estimation from sampled signals, with well-kept library code.
 
+A derivative estimator is any object with a ``name`` and ``estimate(t, y, order, where)``
+(:class:`DerivativeEstimator`); ``data.derivatives`` names one of :data:`ESTIMATORS` or, from
+Python, is one (``SavitzkyGolay(window=15)``). ``data.window`` and ``data.cutoff`` set the estimator's
+``window`` and ``cutoff`` fields where it has them (:func:`configured`). Besides the estimators below,
+``exact`` (:class:`Exact`: every signal the model reads is given) and ``auto`` (:class:`Auto`: exact
+for a noise-free simulated system, else ``savgol``) are registered.
+
 Estimators (all return the smoothed signal and its first ``order`` derivatives):
 - ``savgol``: Savitzky-Golay, local cubic (``scipy.signal.savgol_filter``), the default;
 - ``spline``: penalised cubic smoothing spline, penalty by generalised cross-validation
@@ -33,13 +40,15 @@ smallest window; longer or noisier records get wider ones.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
+from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
 from .errors import DataError
+from .registry import Registry
 
-METHODS = ("savgol", "spline", "loess", "finite_difference", "butterworth", "interpolating_spline")
 SAVGOL_DEGREE = 3  # local cubic: unbiased for the first two derivatives of a cubic
 LOESS_DEGREE = 1  # statsmodels lowess fits local lines
 BUTTERWORTH_ORDER = 4  # as in inverse-dynamics identification of robots and drives (IDIM-LS)
@@ -98,84 +107,221 @@ def choose_window(y: np.ndarray, degree: int) -> tuple[int, float]:
     return max(smallest, min(window, largest)), cutoff
 
 
-def estimate(t: np.ndarray, y: np.ndarray, order: int, method: str = "savgol", window: int | None = None,
-             name: str = "signal", cutoff: float | None = None) -> Estimate:
-    """Smooth ``y(t)`` and estimate derivatives up to ``order``; errors name ``name``.
+@runtime_checkable
+class DerivativeEstimator(Protocol):
+    """Smooths a sampled signal ``y(t)`` and estimates its first ``order`` derivatives; ``where``
+    names the signal in errors (a file and column)."""
 
-    ``cutoff`` (cycles per time unit) is the ``butterworth`` cut-off. ``info`` records the method,
-    the window (samples, ``None`` where not windowed) or cut-off, how it was chosen, the local degree
-    or filter order and the noise estimate, for the result's provenance."""
-    try:
-        with np.errstate(all="ignore"):
-            result = _estimate(t, y, order, method, window, name, cutoff)
-    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # the libraries' numeric failures
-        raise DataError(f"{name}: the {method} estimator failed: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
-    if not all(np.isfinite(v).all() for v in result.values):
-        raise DataError(f"{name}: the {method} estimates are not finite (values too large or too close in time?)")
-    return result
+    name: str
+
+    def estimate(self, t: np.ndarray, y: np.ndarray, order: int, where: str = "signal") -> Estimate: ...
 
 
-def _estimate(t, y, order, method, window, name, cutoff=None) -> Estimate:
-    t = np.asarray(t, dtype=float)
-    y = np.asarray(y, dtype=float)
-    n = y.size
-    if method not in METHODS:
-        raise DataError(f"{name}: unknown derivative estimator {method!r} (known: {', '.join(METHODS)})")
-    if order > 0 and n > 1 and np.ptp(y) == 0:
-        raise DataError(f"{name}: the signal is constant, so its derivatives carry no information")
-    info = {"method": method, "window": None, "window_rule": None, "noise_std": noise_level(y)}
-    if method in ("finite_difference", "butterworth"):
-        if n < order + 2:
-            raise DataError(f"{name}: {n} samples are too few for finite differences of order {order} "
-                            f"(need {order + 2})")
-        if method == "butterworth":
-            y, info = _butterworth(t, y, cutoff, name, info)
-        values = [y]
-        for _ in range(order):
-            values.append(np.gradient(values[-1], t, edge_order=2))
-        return Estimate(values, info)
-    if method == "interpolating_spline":
+class Smoother:
+    """The checks every built-in estimator shares: a constant signal has no derivatives, the
+    libraries' numeric failures become :class:`DataError` naming the signal, estimates are finite.
+    ``info`` records the method, the window (samples, ``None`` where not windowed) or cut-off, how it
+    was chosen, the local degree or filter order and the noise estimate, for the result's provenance."""
+
+    name: ClassVar[str]
+
+    def estimate(self, t: np.ndarray, y: np.ndarray, order: int, where: str = "signal") -> Estimate:
+        try:
+            with np.errstate(all="ignore"):
+                t = np.asarray(t, dtype=float)
+                y = np.asarray(y, dtype=float)
+                if order > 0 and y.size > 1 and np.ptp(y) == 0:
+                    raise DataError(f"{where}: the signal is constant, so its derivatives carry no information")
+                info = {"method": self.name, "window": None, "window_rule": None, "noise_std": noise_level(y)}
+                result = self._estimate(t, y, order, where, info)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # the libraries' numeric failures
+            raise DataError(f"{where}: the {self.name} estimator failed: "
+                            f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+        if not all(np.isfinite(v).all() for v in result.values):
+            raise DataError(f"{where}: the {self.name} estimates are not finite (values too large or too close in time?)")
+        return result
+
+    def _estimate(self, t: np.ndarray, y: np.ndarray, order: int, where: str, info: dict) -> Estimate:
+        raise NotImplementedError
+
+
+def _differences(t: np.ndarray, y: np.ndarray, order: int) -> list[np.ndarray]:
+    """``y`` and its nested second-order central differences up to ``order``."""
+    values = [y]
+    for _ in range(order):
+        values.append(np.gradient(values[-1], t, edge_order=2))
+    return values
+
+
+def _enough_for_differences(y: np.ndarray, order: int, where: str) -> None:
+    if y.size < order + 2:
+        raise DataError(f"{where}: {y.size} samples are too few for finite differences of order {order} "
+                        f"(need {order + 2})")
+
+
+@dataclass(frozen=True)
+class FiniteDifference(Smoother):
+    """No smoothing: second-order central differences (``numpy.gradient``)."""
+
+    name: ClassVar[str] = "finite_difference"
+
+    def _estimate(self, t, y, order, where, info):
+        _enough_for_differences(y, order, where)
+        return Estimate(_differences(t, y, order), info)
+
+
+@dataclass(frozen=True)
+class Butterworth(Smoother):
+    """Zero-phase Butterworth low-pass at ``cutoff`` (cycles per time unit; ``None``: the noise
+    floor), then central differences of the filtered signal."""
+
+    name: ClassVar[str] = "butterworth"
+    cutoff: float | None = None
+
+    def _estimate(self, t, y, order, where, info):
+        _enough_for_differences(y, order, where)
+        y, info = _butterworth(t, y, self.cutoff, where, info)
+        return Estimate(_differences(t, y, order), info)
+
+
+@dataclass(frozen=True)
+class InterpolatingSpline(Smoother):
+    """No smoothing: the quintic interpolating spline (``scipy.interpolate.make_interp_spline``)."""
+
+    name: ClassVar[str] = "interpolating_spline"
+
+    def _estimate(self, t, y, order, where, info):
         from scipy.interpolate import make_interp_spline
 
         degree = max(INTERPOLATING_DEGREE, order + 2) | 1
-        if n < degree + 1:
-            raise DataError(f"{name}: {n} samples are too few for an interpolating spline of degree {degree} "
+        if y.size < degree + 1:
+            raise DataError(f"{where}: {y.size} samples are too few for an interpolating spline of degree {degree} "
                             f"(need {degree + 1})")
         spline = make_interp_spline(t, y, k=degree)
         return Estimate([y] + [spline(t, nu=k) for k in range(1, order + 1)], {**info, "degree": degree})
-    if method == "spline":
+
+
+@dataclass(frozen=True)
+class SmoothingSpline(Smoother):
+    """Penalised cubic smoothing spline, penalty by generalised cross-validation."""
+
+    name: ClassVar[str] = "spline"
+
+    def _estimate(self, t, y, order, where, info):
         from scipy.interpolate import make_smoothing_spline
 
-        if n < 5:
-            raise DataError(f"{name}: {n} samples are too few for a smoothing spline (need 5)")
+        if y.size < 5:
+            raise DataError(f"{where}: {y.size} samples are too few for a smoothing spline (need 5)")
         spline = make_smoothing_spline(t, y)
         return Estimate([spline(t, nu=k) for k in range(order + 1)], {**info, "window_rule": "gcv", "degree": 3})
-    degree = max(SAVGOL_DEGREE, order) if method == "savgol" else LOESS_DEGREE
+
+
+def _local_window(method: str, y: np.ndarray, degree: int, window: int | None, where: str, info: dict,
+                  odd: bool) -> tuple[int, dict]:
+    """The window of a local fit of ``degree``: given, or by the noise-floor rule (:func:`choose_window`)."""
+    n = y.size
     smallest = (degree + 2) | 1
     if n < smallest:
-        raise DataError(f"{name}: {n} samples are fewer than the smallest {method} window of {smallest} samples")
+        raise DataError(f"{where}: {n} samples are fewer than the smallest {method} window of {smallest} samples")
     rule = "given"
     if window is None:
         window, cutoff = choose_window(y, degree)
         rule = f"noise floor (cut-off {cutoff:.4g} cycles/sample)"
-    if method == "savgol" and window % 2 == 0:
+    if odd and window % 2 == 0:
         window += 1
     if window > n or window < smallest:
-        raise DataError(f"{name}: {n} samples do not fit the derivative window of {window} samples "
+        raise DataError(f"{where}: {n} samples do not fit the derivative window of {window} samples "
                         f"(data.window must lie between {smallest} and {n})")
-    info = {**info, "window": int(window), "window_rule": rule, "degree": degree}
-    if method == "savgol":
+    return window, {**info, "window": int(window), "window_rule": rule, "degree": degree}
+
+
+@dataclass(frozen=True)
+class SavitzkyGolay(Smoother):
+    """Savitzky-Golay local cubic of ``window`` samples (``None``: the noise-floor rule)."""
+
+    name: ClassVar[str] = "savgol"
+    window: int | None = None
+
+    def _estimate(self, t, y, order, where, info):
         from scipy.signal import savgol_filter
 
+        degree = max(SAVGOL_DEGREE, order)
+        window, info = _local_window(self.name, y, degree, self.window, where, info, odd=True)
         dt = float(np.median(np.diff(t)))
-        values = [savgol_filter(y, window, degree, deriv=k, delta=dt, mode="interp") for k in range(order + 1)]
-        return Estimate(values, info)
-    from scipy.interpolate import CubicSpline
-    from statsmodels.nonparametric.smoothers_lowess import lowess
+        return Estimate([savgol_filter(y, window, degree, deriv=k, delta=dt, mode="interp") for k in range(order + 1)],
+                        info)
 
-    smooth = lowess(y, t, frac=min(1.0, window / n), it=0, return_sorted=False)
-    spline = CubicSpline(t, smooth)
-    return Estimate([smooth] + [spline(t, nu=k) for k in range(1, order + 1)], info)
+
+@dataclass(frozen=True)
+class Loess(Smoother):
+    """Locally weighted linear regression (statsmodels ``lowess``) of ``window`` samples, then a
+    cubic interpolating spline for the derivatives."""
+
+    name: ClassVar[str] = "loess"
+    window: int | None = None
+
+    def _estimate(self, t, y, order, where, info):
+        from scipy.interpolate import CubicSpline
+        from statsmodels.nonparametric.smoothers_lowess import lowess
+
+        window, info = _local_window(self.name, y, LOESS_DEGREE, self.window, where, info, odd=False)
+        smooth = lowess(y, t, frac=min(1.0, window / y.size), it=0, return_sorted=False)
+        spline = CubicSpline(t, smooth)
+        return Estimate([smooth] + [spline(t, nu=k) for k in range(1, order + 1)], info)
+
+
+@dataclass(frozen=True)
+class Exact:
+    """``exact``: every signal the model reads is given (measured, or simulated without noise);
+    nothing is estimated."""
+
+    name: ClassVar[str] = "exact"
+
+    def estimate(self, t, y, order, where="signal") -> Estimate:
+        raise DataError(f"{where}: data.derivatives is 'exact', so derivatives are not estimated; "
+                        f"choose an estimator ({', '.join(METHODS)})")
+
+
+@dataclass(frozen=True)
+class Auto:
+    """``auto``: :class:`Exact` for a noise-free simulated system, else :class:`SavitzkyGolay`."""
+
+    name: ClassVar[str] = "auto"
+    window: int | None = None
+
+    def choose(self, noise_free_simulation: bool) -> DerivativeEstimator:
+        return Exact() if noise_free_simulation else SavitzkyGolay(self.window)
+
+    def estimate(self, t, y, order, where="signal") -> Estimate:
+        """Estimates from measurements, where nothing is exact: Savitzky-Golay's."""
+        return self.choose(False).estimate(t, y, order, where)
+
+
+SMOOTHERS = (SavitzkyGolay, SmoothingSpline, Loess, FiniteDifference, Butterworth, InterpolatingSpline)
+METHODS = tuple(s.name for s in SMOOTHERS)  # the estimators proper
+ESTIMATORS: Registry[DerivativeEstimator] = Registry("data.derivatives", DerivativeEstimator, "derivative estimator")
+for _estimator in (Auto, Exact, *SMOOTHERS):
+    ESTIMATORS.register(_estimator.name, _estimator)
+
+
+def configured(estimator: DerivativeEstimator, window: int | None = None,
+               cutoff: float | None = None) -> DerivativeEstimator:
+    """``estimator`` with ``data.window`` / ``data.cutoff`` set where it has that field; a setting
+    it has no field for is left out (see :func:`takes`)."""
+    given = {k: v for k, v in (("window", window), ("cutoff", cutoff)) if v is not None and takes(estimator, k)}
+    return dataclasses.replace(estimator, **given) if given else estimator
+
+
+def takes(estimator: DerivativeEstimator, setting: str) -> bool:
+    """Whether ``estimator`` has the dataclass field ``setting`` (``window``, ``cutoff``)."""
+    return dataclasses.is_dataclass(estimator) and setting in {f.name for f in dataclasses.fields(estimator)}
+
+
+def estimate(t: np.ndarray, y: np.ndarray, order: int, method: str | DerivativeEstimator = "savgol",
+             window: int | None = None, name: str = "signal", cutoff: float | None = None) -> Estimate:
+    """Smooth ``y(t)`` and estimate derivatives up to ``order`` with ``method`` (a registered name
+    or an estimator) and its ``window`` or ``cutoff``; errors name ``name``."""
+    return configured(ESTIMATORS.resolve(method), window, cutoff).estimate(t, y, order, name)
 
 
 def _butterworth(t: np.ndarray, y: np.ndarray, cutoff: float | None, name: str, info: dict) -> tuple[np.ndarray, dict]:

@@ -18,9 +18,10 @@ import sys
 import torch
 import torch.distributed as dist
 
-from .api import adapt, step_options
-from .config import Config, load_config
+from .api import adapt
+from .config import load_config
 from .errors import MSAMError
+from .plan import Plan
 from .step import State
 from .trainer import Trainer
 
@@ -53,9 +54,9 @@ class ShardedTrainer(Trainer):
         return parts[0][..., 0], ranking, flag
 
 
-def sharded_trainer(config: Config) -> ShardedTrainer:
-    a = config.adaptation
-    return ShardedTrainer(step_options(config), a.round_robin_steps, a.refinement_steps, a.chunk_size)
+def sharded_trainer(plan: Plan) -> ShardedTrainer:
+    a = plan.config.adaptation
+    return ShardedTrainer(plan.options, a.round_robin_steps, a.refinement_steps, a.chunk_size, plan.evaluator)
 
 
 def init_process_group(device: str) -> bool:

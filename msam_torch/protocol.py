@@ -19,12 +19,13 @@ from typing import Callable, Sequence
 
 import torch
 
-from .api import equation_result, make_trainer
+from .api import equation_result
 from .candidates import EquationData, equation_choices
 from .config import Config
 from .data import load_datasets
+from .plan import Plan, make_trainer, prepare
 from .result import EquationResult
-from .spec import Equation, ModelSpec
+from .spec import Equation
 from .systems import perturb_parameters
 from .trainer import Fit, Trainer
 
@@ -78,35 +79,34 @@ def run_trials(config: Config, trials: Sequence[Trial], seed: int, base_dir: str
     ``equation_options`` maps a target (``'x3_dot'``) to Trainer settings for that equation
     (``round_robin_steps``, ``refinement_steps``), as the paper uses per state (Table 3).
     """
-    spec = ModelSpec.from_config(config.model)
-    dtype = getattr(torch, config.adaptation.dtype)
-    device = torch.device(config.adaptation.device)
-    train, _ = load_datasets(config.data, spec, base_dir, dtype=dtype)
-    signals = {k: v.to(device) for k, v in train.signals.items()}
+    plan = prepare(config)
+    spec = plan.spec
+    train, _ = load_datasets(config.data, spec, base_dir, dtype=plan.dtype, estimator=plan.derivatives)
+    signals = {k: v.to(plan.device) for k, v in train.signals.items()}
     parameters = [trial_parameters(spec.parameters, t, seed) for t in trials]
     per_equation = []
     for equation in spec.equations:
-        fit, thetas, scale = fit_equation(config, spec, equation, signals, parameters, equation_options, on_trainer,
+        fit, thetas, scale = fit_equation(plan, equation, signals, parameters, equation_options, on_trainer,
                                           max_elements)
         per_equation.append([equation_result(equation, fit, thetas[k], scale, k) for k in range(len(trials))])
     return [TrialResult(t, parameters[k], [results[k] for results in per_equation]) for k, t in enumerate(trials)]
 
 
-def fit_equation(config: Config, spec: ModelSpec, equation: Equation, signals: dict, parameters: list[dict],
+def fit_equation(plan: Plan, equation: Equation, signals: dict, parameters: list[dict],
                  equation_options: dict | None = None, on_trainer: Callable[[Trainer, Equation], None] | None = None,
                  max_elements: int = MAX_ELEMENTS) -> tuple[Fit, torch.Tensor, torch.Tensor]:
     """One state equation for a batch of nominal parameter sets: the Fit, theta (T, Q + P), scale."""
     dtype, device = signals["t"].dtype, signals["t"].device
-    data = EquationData.build(equation, signals, config.adaptation.normalize)
+    data = EquationData.build(equation, signals, plan.config.adaptation.normalize)
     n, q = data.y.shape[-1], len(equation.adjustable)
     candidates = data.log_f.shape[-1] ** q
-    thetas = torch.stack([spec.theta(equation, p) for p in parameters]).to(device=device, dtype=dtype)
+    thetas = torch.stack([plan.spec.theta(equation, p) for p in parameters]).to(device=device, dtype=dtype)
     group = max(1, max_elements // max(1, candidates * n * max(1, q)))  # trials per chunk
     start = torch.tensor([equation.components[i].start for i in equation.adjustable], dtype=dtype, device=device)
     fits = []
     for first in range(0, len(parameters), group):
         theta = thetas[first: first + group]
-        trainer = make_trainer(config)
+        trainer = make_trainer(plan)
         for key, value in (equation_options or {}).get(equation.target, {}).items():
             setattr(trainer, key, value)
         trainer.chunk_size = min(trainer.chunk_size, chunk_size(theta.shape[0], n, q, max_elements))

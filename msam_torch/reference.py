@@ -3,7 +3,8 @@
 A literal reading of Eq. 14-20 for a single candidate and a single trial, with no batching and no
 shortcuts: parameter sensitivities by ``jacfwd`` at ``Gamma`` and at every ``Gamma + dgamma e_i``
 (Eq. 14-15), finite-difference structural sensitivities (Eq. 16), the least-squares step
-(Eq. 17-18) by a pseudo-inverse and the step size (Eq. 20, ``mu = 1`` or the line search). It is
+(Eq. 17-18) by a pseudo-inverse and the step size (Eq. 20, ``mu = 1`` or the line search: the
+options' rule applied to this one candidate, its trial fitness from this path). It is
 slow on purpose: the tests check the batched engine against it, and ``bench_engine.py`` uses it
 as the sequential baseline.
 """
@@ -14,9 +15,9 @@ from dataclasses import dataclass
 import torch
 
 from .candidates import Candidate, EquationData
-from .fitness import correlation, fitness
+from .fitness import fitness
 from .sensitivity import parameter_sensitivities, structural_sensitivities
-from .step import LINE_SEARCH_STEPS, StepOptions
+from .step import StepOptions
 
 
 @dataclass(frozen=True)
@@ -59,14 +60,14 @@ def reference_theta(module: Candidate, data: EquationData, rcond: float = 1e-12)
 
 def reference_fitness(module: Candidate, data: EquationData, options: StepOptions) -> float:
     """Eq. 19 of the candidate (theta re-solved first under 'varpro')."""
-    if options.theta == "varpro":
+    if options.theta.re_solved:
         module = reference_theta(module, data, options.rcond)
     return float(fitness(data.y[0], module(data)[0].detach()))
 
 
 def reference_step(module: Candidate, data: EquationData, options: StepOptions) -> ReferenceStep:
     """One iteration of Eq. 14-18 for one candidate on one trial (``data`` with T = 1)."""
-    if options.theta == "varpro":
+    if options.theta.re_solved:
         module = reference_theta(module, data, options.rcond)
     y = data.y[0]
     gamma = module.gamma.detach()
@@ -82,21 +83,16 @@ def reference_step(module: Candidate, data: EquationData, options: StepOptions) 
         columns.append(shifted(data)[0].detach() - yhat)
     dm = torch.stack(dm)
     delta_yhat = torch.stack(columns, -1)
-    if options.theta == "varpro":  # Kaufman: project off the span of every component's column
+    if options.theta.re_solved:  # Kaufman: project off the span of every component's column
         design = torch.cat([sens, data.fixed_components[0]], -1)
         delta_yhat = delta_yhat - design @ torch.stack([_least_squares(design, c, 0.0, options.rcond)
                                                         for c in delta_yhat.T], -1)
     steps = dm if options.scaling == "dm" else torch.full_like(dm, options.dgamma)
     phi = structural_sensitivities(delta_yhat, steps)  # Eq. 16
     delta = _least_squares(phi, eps, options.damping, options.rcond)  # Eq. 17
-    if options.step_size == "eq20":
-        mu = float(correlation(eps, phi @ delta))  # Eq. 20
-    elif options.step_size == "one":
-        mu = 1.0
-    else:
-        current = float(fitness(y, yhat))
-        mu = next((m for m in LINE_SEARCH_STEPS
-                   if reference_fitness(_with(module, gamma=gamma + m * delta), data, options) > current), 0.0)
+    trial = lambda m, among: torch.tensor(reference_fitness(_with(module, gamma=gamma + m * delta), data, options),
+                                          dtype=y.dtype)
+    mu = float(options.step_size.mu(fitness(y, yhat), phi @ delta, eps, trial))  # e.g. Eq. 20
     new = gamma + mu * delta  # Eq. 18
     diverged = bool(~torch.isfinite(new).all() or (new.abs() > options.gamma_limit).any())
     return ReferenceStep(gamma if diverged else new, mu, delta, dm, diverged)

@@ -1,6 +1,7 @@
 """One MSAM iteration on a batch of candidates: the NLS step (Eq. 17-18), its step size (Eq. 20,
-``mu = 1`` or backtracking) and, optionally, theta re-solved by linear least squares at every
-step (variable projection with Kaufman's Jacobian, design notes section 3).
+``mu = 1`` or backtracking: a :class:`~msam_torch.step_rules.StepSizeRule`) and, optionally, theta
+re-solved by linear least squares at every step (variable projection with Kaufman's Jacobian,
+design notes section 3).
 
 Everything is a pure function of tensors batched over (trials, candidates).
 """
@@ -11,23 +12,28 @@ from dataclasses import dataclass, replace
 import torch
 
 from .candidates import Selection, columns, predict
-from .fitness import correlation, scores
+from .fitness import scores
 from .sensitivity import gram_condition_number, perturbation_magnitude_from_change
-
-LINE_SEARCH_STEPS = (1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125)
+from .step_rules import STEP_SIZES, StepSizeRule, ThetaRule
 
 
 @dataclass(frozen=True)
 class StepOptions:
-    """How a step is taken. Defaults follow the paper (section 4)."""
+    """How a step is taken. Defaults follow the paper (section 4). ``step_size`` is a rule or the
+    name of one in :data:`~msam_torch.step_rules.STEP_SIZES`, ``theta`` a
+    :class:`~msam_torch.step_rules.ThetaRule` or its name; names become the objects here."""
 
     dgamma: float = 1e-2  # exponent perturbation of Eq. 15-16
     scaling: str = "dm"  # 'dm': solve and step in dM-scaled units (Eq. 16-18); 'gauss_newton'
-    step_size: str = "eq20"  # 'eq20' (mu = corr(eps, Phi dGamma)), 'one', 'line_search'
-    theta: str = "fixed"  # 'fixed' nominal theta, or 'varpro' (theta re-solved every step)
+    step_size: StepSizeRule | str = "eq20"  # Eq. 20 (mu = corr(eps, Phi dGamma)), 'one', 'line_search'
+    theta: ThetaRule | str = ThetaRule.FIXED  # nominal theta, or 'varpro' (theta re-solved every step)
     damping: float = 0.0  # Levenberg-Marquardt damping on the column-equilibrated normal equations
     gamma_limit: float = 20.0  # |gamma| beyond which a candidate is marked diverged
     rcond: float = 1e-12  # relative eigenvalue cut-off of the least-squares solves
+
+    def __post_init__(self):
+        object.__setattr__(self, "step_size", STEP_SIZES.resolve(self.step_size))
+        object.__setattr__(self, "theta", ThetaRule(self.theta))
 
 
 @dataclass(frozen=True)
@@ -155,7 +161,7 @@ def evaluate(selection: Selection, state: State, options: StepOptions) -> Evalua
     """Columns, output and fitness of ``state`` (theta re-solved first under 'varpro')."""
     cols = columns(selection, state.gamma)
     theta, theta_fixed, gram = state.theta, state.theta_fixed, None
-    if options.theta == "varpro":
+    if options.theta.re_solved:
         gram = design_gram(selection, cols)
         theta, theta_fixed = solve_theta(selection, cols, options.rcond, gram)
     yhat = predict(selection, cols, theta, theta_fixed)
@@ -181,7 +187,7 @@ def step(selection: Selection, state: State, current: Evaluation, options: StepO
         change = columns(selection, state.gamma + options.dgamma) - current.cols
     dm = perturbation_magnitude_from_change(current.cols, change)
     theta = current.theta
-    if options.theta == "varpro":  # Kaufman: project the sensitivities off the span of the columns
+    if options.theta.re_solved:  # Kaufman: project the sensitivities off the span of the columns
         cols = current.cols
         design = design_gram(selection, cols) if current.design_gram is None else current.design_gram
         sens = change * theta.unsqueeze(-2)
@@ -204,8 +210,7 @@ def step(selection: Selection, state: State, current: Evaluation, options: StepO
 
     mu = step_size(current.fitness, fitted(x), eps, options, trial_fitness, state.settled)  # Phi dGamma = Y x
     gamma, diverged = advance(state.gamma, mu, delta, state.diverged, current.fitness, options)
-    settled = mu == 0 if options.step_size == "line_search" else None
-    new_state = State(gamma, current.theta, current.theta_fixed, diverged, settled=settled)
+    new_state = State(gamma, current.theta, current.theta_fixed, diverged, settled=options.step_size.settled(mu))
     cond_scaled = cond_unscaled = None
     if conditions:
         cond_scaled = gram_condition_number(_rescale(gram, dm))
@@ -246,28 +251,6 @@ def advance(gamma: torch.Tensor, mu: torch.Tensor, delta: torch.Tensor, diverged
 
 def step_size(fitness: torch.Tensor, predicted: torch.Tensor, eps: torch.Tensor,
               options: StepOptions, trial_fitness, settled: torch.Tensor | None = None) -> torch.Tensor:
-    """mu of every candidate (T, C): Eq. 20, 1, or a backtracking line search.
-
-    ``predicted`` is the first-order change ``Phi dGamma`` (..., N) of Eq. 11; ``trial_fitness(mu,
-    among)`` returns the fitness (T, C) of the candidates moved by ``mu``, needed only where
-    ``among`` (T, C) holds; only the line search calls it, and not for ``settled`` candidates (mu 0).
-    """
-    if options.step_size == "eq20":  # Eq. 20: mu = corr(eps, Phi dGamma)
-        return correlation(eps, predicted)
-    if options.step_size == "one":
-        return torch.ones_like(fitness)
-    return _line_search(fitness, trial_fitness, settled)
-
-
-def _line_search(fitness, trial_fitness, settled=None) -> torch.Tensor:
-    """Largest mu in LINE_SEARCH_STEPS that raises the fitness (0 if none, and for ``settled``
-    candidates): backtracking, which stops as soon as every other candidate has found its mu."""
-    mu = torch.zeros_like(fitness)
-    open_ = torch.ones_like(fitness, dtype=torch.bool) if settled is None else ~settled
-    for value in LINE_SEARCH_STEPS:
-        if not bool(open_.any()):
-            break
-        better = trial_fitness(value, open_) > fitness
-        mu = torch.where(open_ & better, torch.full_like(mu, value), mu)
-        open_ = open_ & ~better
-    return mu
+    """mu of every candidate (T, C) by ``options.step_size`` (Eq. 20, 1, or a backtracking line
+    search; see :meth:`~msam_torch.step_rules.StepSizeRule.mu` for the arguments)."""
+    return options.step_size.mu(fitness, predicted, eps, trial_fitness, settled)

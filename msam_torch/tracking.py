@@ -3,8 +3,9 @@
 Per candidate (``c003`` = candidate 3 of the round robin; the ranking in ``result.json`` and the
 ``candidates`` text panel map indices to adjustments): ``fitness``, ``sum_abs_error``, ``rho``,
 ``gamma_<i>``, ``mu``, ``cond_scaled`` and ``cond_unscaled`` (``cond(Phi^T Phi)`` with and
-without dM scaling). Tags are ``<target>/<stage>/<measure>/c<index>``. Only trial 0 is logged;
-with more than ``max_candidates`` candidates only the best ``max_candidates`` by current fitness are.
+without dM scaling; attaching the tracker switches on the trainer's ``diagnostics``). Tags are
+``<target>/<stage>/<measure>/c<index>``. Only trial 0 is logged; with more than
+``max_candidates`` candidates only the best ``max_candidates`` by current fitness are.
 """
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from pathlib import Path
 import torch
 
 from .result import write_atomic
+
 
 class TensorBoardTracker:
     def __init__(self, log_dir: str | Path, max_candidates: int = 64):
@@ -35,6 +37,7 @@ class TensorBoardTracker:
 
     def attach(self, trainer, prefix: str, labels) -> None:
         """Log ``trainer``'s steps under ``prefix``; ``labels(choice)`` names a candidate."""
+        trainer.diagnostics = True  # the condition numbers are logged
         trainer.add_callback("round_robin_step", lambda t, **p: self._log(prefix, "round_robin", p))
         trainer.add_callback("refinement_step", lambda t, **p: self._log(prefix, "refinement", p))
         trainer.add_callback("round_robin_end", lambda t, choices, **p: self.writer.add_text(

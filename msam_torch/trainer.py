@@ -5,9 +5,12 @@ callbacks (``trainer.add_callback(event, fn)``), each called as ``fn(trainer, **
 Events: ``round_robin_step``, ``round_robin_end``, ``refinement_step``, ``refinement_end``.
 Candidates are processed in chunks of ``chunk_size`` so memory stays bounded; all trials of a
 batch (leading axis T) run together. How a candidate is evaluated and stepped is the trainer's
-``evaluator``: :class:`Algebraic` (Eq. 6, the default) or the simulation-based evaluator of
-:mod:`msam_torch.simulation_mode`; the best *state* of each candidate (exponents, theta and, in
-simulation mode, initial states) is what the stages keep and hand on.
+``evaluator`` (:class:`~msam_torch.evaluators.Evaluator`): :class:`Algebraic` (Eq. 6, the default)
+or the simulation-based evaluator of :mod:`msam_torch.simulation_mode`; the best *state* of each
+candidate (exponents, theta and, in simulation mode, initial states) is what the stages keep and
+hand on. ``diagnostics`` switches on the condition numbers ``cond(Phi^T Phi)`` of every step
+(Figure 5; ``result.cond_scaled`` / ``cond_unscaled`` in the step events, else None): two
+eigendecompositions per candidate and step, so only a listener that records them sets it.
 """
 from __future__ import annotations
 
@@ -18,6 +21,7 @@ from typing import Callable
 import torch
 
 from .candidates import EquationData, enumerate_choices
+from .evaluators import Evaluator
 from .fitness import correlation, fitness, sum_abs_error
 from .step import State, StepOptions, evaluate, step
 
@@ -51,12 +55,8 @@ def measures(y: torch.Tensor, yhat: torch.Tensor) -> dict:
 
 
 class Algebraic:
-    """Algebraic evaluation of candidates (paper section 2, Eq. 6-7): the default evaluator.
-
-    An evaluator provides ``evaluate(selection, state, options) -> Evaluation``, ``step(selection,
-    state, current, options) -> StepResult`` and ``starting_measures(data, theta, theta_fixed)``;
-    ``data.select(choices)`` gives the selection it works on.
-    """
+    """Algebraic evaluation of candidates (paper section 2, Eq. 6-7): the default
+    :class:`~msam_torch.evaluators.Evaluator`, registered as ``algebraic``."""
 
     evaluate = staticmethod(evaluate)
     step = staticmethod(step)
@@ -68,12 +68,14 @@ class Algebraic:
 
 class Trainer:
     def __init__(self, options: StepOptions = StepOptions(), round_robin_steps: int = 15,
-                 refinement_steps: int = 70, chunk_size: int = 4096, evaluator=Algebraic):
+                 refinement_steps: int = 70, chunk_size: int = 4096, evaluator: Evaluator = Algebraic,
+                 diagnostics: bool = False):
         self.options = options
         self.round_robin_steps = round_robin_steps
         self.refinement_steps = refinement_steps
         self.chunk_size = chunk_size
         self.evaluator = evaluator
+        self.diagnostics = diagnostics
         self.callbacks: dict[str, list[Callable]] = defaultdict(list)
 
     def add_callback(self, event: str, fn: Callable) -> None:
@@ -143,7 +145,7 @@ class Trainer:
             best_fitness = initial_best
         best = state
         for iteration in range(steps):
-            result = evaluator.step(selection, state, current, self.options, conditions=bool(self.callbacks[event]))
+            result = evaluator.step(selection, state, current, self.options, conditions=self.diagnostics)
             state = result.state
             current = evaluator.evaluate(selection, state, self.options)
             improved = current.fitness > best_fitness

@@ -11,7 +11,7 @@ import torch
 from msam_torch.cli import main
 from msam_torch.config import DataConfig, load_config
 from msam_torch.data import build_dataset
-from msam_torch.diagnose import NO_GAP, DiagnoseOptions, diagnose
+from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
 from msam_torch.diagnose.catalogue import NOT_CATALOGUED, name_effect
 from msam_torch.diagnose.weak import TestFunctions as Bumps
 from msam_torch.simulate import EquationModel, simulate
@@ -93,16 +93,18 @@ def test_simulate_marks_a_diverging_member_without_spoiling_the_batch():
 
 def test_diagnosis_end_to_end_report(tmp_path):
     w, (train, held_out) = case_data("msd_coulomb")
-    report = diagnose({"model": w.model}, data=train, validate=held_out, options=FAST)
-    assert report.verdict == "gap explained by Coulomb friction"
+    report = diagnose({"model": w.model}, data=train, validation=held_out, options=FAST)
+    assert report.verdict_kind is Verdict.EXPLAINED and report.verdict == "gap explained by Coulomb friction"
     gap = report.equations[0]
+    assert gap.verdict_kind is Verdict.EXPLAINED and gap.effect == "Coulomb friction"
     assert abs(gap.exponent + 1) < 0.2 and gap.confidence["win_frequency"] >= 0.5
     free = report.measures["free_run"]["held_out"]["nrmse"]
     assert free["adapted"] * 5 < free["start"] and free["adapted"] < free["retuned"]
     assert "Coulomb friction" in str(report)
     path = report.save(tmp_path)
     saved = json.loads(path.read_text())
-    assert saved["version"] == 1 and saved["verdict"] == report.verdict
+    assert saved["version"] == 1 and saved["verdict"] == report.verdict and saved["verdict_kind"] == "explained"
+    assert saved["equations"][0]["verdict"] == gap.verdict and saved["equations"][0]["verdict_kind"] == "explained"
     for key in ("target", "significant", "verdict", "effect", "confidence", "improvement", "ranking", "where",
                 "start_equation", "retuned_equation", "adapted_equation", "components"):
         assert key in saved["equations"][0]
@@ -117,9 +119,10 @@ def test_diagnosis_end_to_end_report(tmp_path):
 
 def test_null_case_reports_no_significant_gap():
     w, (train, held_out) = case_data("msd_linear", noise=0.01)
-    report = diagnose({"model": w.model, "data": {"parametric_error": 0.5, "seed": 3}}, data=train, validate=held_out,
+    report = diagnose({"model": w.model, "data": {"parametric_error": 0.5, "seed": 3}}, data=train, validation=held_out,
                       options=replace(FAST, free_run=False))
-    assert report.verdict == NO_GAP
+    assert report.verdict_kind is Verdict.NO_GAP and report.verdict == "no significant gap"
+    assert report.equations[0].verdict_kind is Verdict.NO_GAP
     assert report.equations[0].effect is None
 
 
@@ -127,8 +130,9 @@ def test_units_do_not_change_the_selection():
     w, (train, held_out) = case_data("msd_hardening")
     _, (train_mm, held_mm) = case_data("msd_hardening", scale=1000.0)
     options = replace(FAST, free_run=False, bootstrap=0)
-    a = diagnose({"model": w.model}, data=train, validate=held_out, options=options).equations[0]
-    b = diagnose({"model": w.model}, data=train_mm, validate=held_mm, options=options).equations[0]
+    a = diagnose({"model": w.model}, data=train, validation=held_out, options=options).equations[0]
+    b = diagnose({"model": w.model}, data=train_mm, validation=held_mm, options=options).equations[0]
+    assert a.verdict_kind is b.verdict_kind is Verdict.EXPLAINED
     assert a.verdict == b.verdict == "gap explained by hardening cubic stiffness"
     assert a.exponent == pytest.approx(b.exponent, abs=1e-3)
 

@@ -39,6 +39,7 @@ def test_configs_point_at_carried_files():
                 assert (CONFIGS / file).exists(), (name, file)
 
 
+@pytest.mark.slow
 def test_emps_names_coulomb_friction_on_a_slice():
     """EMPS, the first 6 s of the estimation record, as experiments/realdata.py reads it: the split
     viscous term becomes viscous plus a law the catalogue names Coulomb friction; theta re-estimated
@@ -65,6 +66,7 @@ def test_emps_names_coulomb_friction_on_a_slice():
     assert force_error(equation, named, train.signals, "tau") < 0.06
 
 
+@pytest.mark.slow
 def test_silverbox_names_cubic_stiffness_on_a_slice():
     """Silverbox, 4,000 samples of the multisine record for training and the next 2,000 held out,
     as experiments/realdata.py reads it: the second stiffness copy becomes a law the catalogue
@@ -90,6 +92,7 @@ def test_silverbox_names_cubic_stiffness_on_a_slice():
     assert rmse["adapted"][0] < rmse["start"][0] / 4, rmse
 
 
+@pytest.mark.slow
 def test_cascaded_tanks_diagnosis_finds_torricelli_and_flags_the_saturation():
     """Cascaded tanks through ``diagnose`` (simulation-based evaluation, only the lower level
     measured, the full estimation record): the lower outflow's exponent is the square root within

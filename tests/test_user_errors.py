@@ -271,7 +271,9 @@ CORPUS: dict[str, dict[str, tuple]] = {
         "out holds other files (diagnose)": (lambda p: (bundled(p), ["--out", str(p)]), [], 2,
                                              ["--out", "holds other files", "config.yaml"], "diagnose"),
         "diagnose data missing": (bundled, ["--data", "{tmp}/none.csv"], 2, ["none.csv", "no such data file"], "diagnose"),
-        "diagnose validate missing": (bundled, ["--validate", "{tmp}/none.csv"], 2, ["none.csv"], "diagnose"),
+        "diagnose validate missing": (frame(), ["--validate", "{tmp}/none.csv"], 2, ["none.csv"], "diagnose"),
+        "diagnose validate beside a simulated record": (bundled, ["--validate", "{tmp}/none.csv"], 2,
+                                                        ["validation", "measured training data"], "diagnose"),
     },
     "data": {
         "missing file": (data_file(b"t,x\n1,2\n", name="other.csv"), [], 2, ["other.csv"]),

@@ -8,7 +8,7 @@ the spec's naming alone: in an equation for the ``k``-th derivative of ``x``, ``
 exponent is within its interval; anything else is "power law, no catalogued effect". A fitted
 exponent just outside an interval (noise biases exponents, design.md section 3) still takes the
 name when the exponent *snapped* to the interval keeps most of the improvement (see
-:func:`msam_torch.diagnose.core`).
+:mod:`msam_torch.diagnose.naming`).
 
 | effect | term | exponent gamma |
 |---|---|---|

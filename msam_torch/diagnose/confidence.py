@@ -1,5 +1,5 @@
-"""How sure a selection is: bootstrap trials over time blocks and measurement noise, run as one
-batch on the leading trials axis, and the verdict rule for a significant effect.
+"""How sure a selection is: the null-verdict rule for a significant effect, the bootstrap trials'
+outcomes and how often the named effect wins them, the margin to the best other name.
 
 Null-verdict rule (design.md section 3): an effect is reported only if its held-out RMSE beats the
 theta-refitted starting model by at least ``relative`` (5 %) and by ``absolute`` (0.2 %) of the
@@ -9,15 +9,8 @@ from __future__ import annotations
 
 import torch
 
-
-def block_weights(fit_rows: torch.Tensor, trials: int, blocks: int, generator: torch.Generator) -> torch.Tensor:
-    """Moving-block bootstrap as weights (trials, M): ``blocks`` contiguous row blocks of the fitted
-    rows are drawn with replacement; a row's weight counts how often its block was drawn."""
-    m = fit_rows.shape[0]
-    block_of = torch.div(torch.arange(m) * blocks, m, rounding_mode="floor")
-    draws = torch.randint(0, blocks, (trials, blocks), generator=generator)
-    counts = torch.zeros(trials, blocks, dtype=torch.float64).scatter_add_(1, draws, torch.ones(trials, blocks, dtype=torch.float64))
-    return counts[:, block_of].to(fit_rows.device) * fit_rows.to(torch.float64)
+from .options import DiagnoseOptions
+from .verdict import Verdict
 
 
 def significant(rmse: torch.Tensor, retuned: torch.Tensor, target_rms: float, relative: float = 0.05,
@@ -28,3 +21,34 @@ def significant(rmse: torch.Tensor, retuned: torch.Tensor, target_rms: float, re
 
 def win_frequency(outcomes: list[str], name: str) -> float:
     return sum(o == name for o in outcomes) / max(len(outcomes), 1)
+
+
+def best_effect(rmse: torch.Tensor, is_effect: torch.Tensor) -> torch.Tensor:
+    """Index of the effect hypothesis (not the re-fitted start) with the least held-out RMSE, (...,)."""
+    return torch.where(is_effect, rmse, torch.full_like(rmse, torch.inf)).argmin(-1)
+
+
+def outcomes(names: list[list[str]], rmse: torch.Tensor, is_effect: torch.Tensor, target_rms: float,
+             options: DiagnoseOptions) -> list[str]:
+    """Each bootstrap trial's outcome: the name of its best effect hypothesis when that passes the
+    null rule, else 'no significant gap'; ``names`` (T, C), ``rmse`` (T, C) held out."""
+    found = []
+    for k, b in enumerate(best_effect(rmse, is_effect).tolist()):
+        ok = bool(significant(rmse[k, b], rmse[k, 0], target_rms, options.relative, options.absolute))
+        found.append(names[k][b] if ok else Verdict.NO_GAP.text())
+    return found
+
+
+def summary(rmse: torch.Tensor, names: list[str], best: int, is_significant: bool, outcome: str,
+            trial_outcomes: list[str]) -> dict:
+    """The report's ``confidence``: ``margin`` (held-out RMSE of the best hypothesis with another
+    name, relative to the chosen one's), ``runner_up``, ``win_frequency`` of ``outcome`` over the
+    bootstrap trials (NaN without trials) and the ``outcomes`` counted."""
+    frequency = win_frequency(trial_outcomes, outcome) if trial_outcomes else float("nan")
+    ranked = [int(c) for c in torch.argsort(rmse) if torch.isfinite(rmse[c])]
+    runner = next((c for c in ranked if names[c] != names[best] and c != 0), None) if is_significant else best
+    reference = rmse[best] if is_significant else rmse[0]
+    margin = float((rmse[runner] - reference) / reference) if runner is not None and reference > 0 else float("inf")
+    return {"margin": margin, "runner_up": names[runner] if runner is not None and is_significant else None,
+            "win_frequency": frequency, "bootstrap_trials": len(trial_outcomes),
+            "outcomes": {o: trial_outcomes.count(o) for o in sorted(set(trial_outcomes))}}

@@ -21,7 +21,7 @@ import torch
 
 from ..candidates import EquationData, Selection, columns, predict
 from ..expressions import parse
-from ..result import format_component
+from ..result import format_component, format_equation
 from ..spec import Equation
 from ..step import State, StepOptions, evaluate, step
 
@@ -123,3 +123,53 @@ def predict_rows(data: EquationData, choices: torch.Tensor, fitted: Fitted) -> t
     selection: Selection = data.select(choices)
     cols = columns(selection, fitted.gamma)
     return predict(selection, cols, fitted.theta, fitted.theta_fixed)
+
+
+def heldout_rmse(val_data: EquationData, val_rows: torch.Tensor, choices: torch.Tensor, fitted: Fitted) -> torch.Tensor:
+    """RMSE of every trial and hypothesis on the held-out rows (T, C); invalid fits score inf."""
+    yhat = predict_rows(val_data, choices, fitted)[..., val_rows]
+    rmse = torch.sqrt(((yhat - val_data.y[0][val_rows]) ** 2).mean(-1))
+    return torch.where(fitted.invalid | ~torch.isfinite(rmse), torch.full_like(rmse, torch.inf), rmse)
+
+
+def slot(equation: Equation, h: Hypothesis) -> int:
+    """The exponent slot of hypothesis ``h`` among the extended equation's 2Q adjustable slots."""
+    q = len(equation.adjustable)
+    return equation.adjustable.index(h.component) + (q if h.kind == "additive" else 0)
+
+
+def exponent(h: Hypothesis, equation: Equation, gamma: torch.Tensor) -> float | None:
+    """The fitted exponent of an effect hypothesis (None for the re-fitted start)."""
+    return None if h.kind == "retuned" else float(gamma[slot(equation, h)])
+
+
+def data_theta(fitted: Fitted, c: int, choices: torch.Tensor, scale: torch.Tensor, trial: int = 0) -> torch.Tensor:
+    """Theta in the data's units: the normalisation ``|f/s|^gamma`` folded back (``s^-gamma``)."""
+    return fitted.theta[trial, c] * scale[choices[c]] ** (-fitted.gamma[trial, c])
+
+
+def equation_text(extended: Equation, equation: Equation, choice, gamma, theta, theta_fixed) -> str:
+    """The hypothesis as an equation in the paper's notation (switched-off copies left out)."""
+    n_f = len(equation.adjustments)
+    slots = {i: k for k, i in enumerate(extended.adjustable)}
+    fixed = {i: k for k, i in enumerate(extended.fixed)}
+    thetas, terms = [], []
+    for i in range(len(extended.components)):
+        if i in fixed:
+            thetas.append(float(theta_fixed[fixed[i]]))
+            terms.append(format_component(extended, i, None, None))
+            continue
+        k = slots[i]
+        f = int(choice[k])
+        if f == n_f + 1:
+            continue
+        thetas.append(float(theta[k]))
+        terms.append(format_component(extended, i, None if f == n_f else f, float(gamma[k])))
+    return format_equation(equation.target, thetas, terms)
+
+
+def fitted_text(extended: Equation, equation: Equation, choices: torch.Tensor, fitted: Fitted, c: int,
+                scale: torch.Tensor) -> str:
+    """:func:`equation_text` of hypothesis ``c`` of the first trial, theta in the data's units."""
+    return equation_text(extended, equation, choices[c], fitted.gamma[0, c], data_theta(fitted, c, choices, scale),
+                         fitted.theta_fixed[0, c])

@@ -18,6 +18,8 @@ from dataclasses import asdict, dataclass, replace
 
 import torch
 
+from ..candidates import EquationData
+from ..spec import Equation
 from ..step import lstsq
 
 MIN_EXPLAINED = 0.2
@@ -111,6 +113,19 @@ def where(t: torch.Tensor, design: torch.Tensor, y: torch.Tensor, values: dict[s
     summary = {"flagged_fraction": float(flagged.double().mean()), "split_explained": explained,
                "time_windows": time_windows(t, flagged, residual), "regions": [asdict(r) for r in regions]}
     return {"summary": summary, "series": {"t": t, "residual": residual, "flagged": flagged, "values": values}}
+
+
+def starting_where(equation: Equation, signals: dict) -> dict:
+    """:func:`where` the starting structure fails, on the one-step (pointwise) rows of the training
+    record; pointwise, because a weak-form row mixes the states over its test function's window."""
+    data = EquationData.build(equation, signals, "none")
+    design = torch.cat([data.components[0], data.fixed_components[0]], -1)
+    return where(signals["t"], design, data.y[0], signal_values(equation, signals))
+
+
+def signal_values(equation: Equation, signals: dict) -> dict:
+    """The signals an equation reads (its target and time left out), by name."""
+    return {n: signals[n] for n in sorted(equation.signals - {equation.target, "t"}) if n in signals}
 
 
 def time_windows(t: torch.Tensor, flagged: torch.Tensor, residual: torch.Tensor, gap: int = 1) -> list[dict]:

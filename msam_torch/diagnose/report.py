@@ -1,7 +1,8 @@
 """The gap report as a value (:class:`GapReport`), its JSON file and a self-contained Markdown
 report with PNG plots.
 
-``gap_report.json`` schema (version 1, documented in the README): ``verdict``, ``equations``
+``gap_report.json`` schema (version 1, documented in the README): ``verdict`` (text) and
+``verdict_kind`` (:class:`~.verdict.Verdict` value), ``equations``
 (one :class:`EquationGap` each), ``measures`` (``one_step`` and ``free_run`` per data set and
 model), ``data``, ``options``, ``config``, ``seconds``.
 """
@@ -13,6 +14,7 @@ from pathlib import Path
 
 from ..outputs import check_folder, one_set, write_atomic
 from ..result import _finite
+from .verdict import Verdict
 
 SCHEMA_VERSION = 1
 
@@ -21,8 +23,9 @@ SCHEMA_VERSION = 1
 class EquationGap:
     """The diagnosis of one state equation.
 
-    ``significant``: an effect passed the null-verdict rule; ``verdict``: 'gap explained by
-    <effect>', 'no significant gap' or 'gap not explained by the candidate set'; ``effect``: the
+    ``significant``: an effect passed the null-verdict rule; ``verdict_kind``: the
+    :class:`~.verdict.Verdict`, ``verdict`` its text ('gap explained by <effect>', 'no
+    significant gap' or 'gap not explained by the candidate set'); ``effect``: the
     catalogue name of the best hypothesis (or 'power law, no catalogued effect'), None without a
     gap; ``hypothesis``/``exponent``: the winning hypothesis and its fitted exponent;
     ``catalogue_exponent``: the exponent the name refers to (the fitted one moved into the
@@ -39,7 +42,7 @@ class EquationGap:
 
     target: str
     significant: bool
-    verdict: str
+    verdict_kind: Verdict
     effect: str | None
     hypothesis: str
     exponent: float | None
@@ -55,11 +58,18 @@ class EquationGap:
     where: dict
     estimator: dict
 
+    @property
+    def verdict(self) -> str:
+        return self.verdict_kind.text(self.effect)
+
 
 @dataclass(frozen=True)
 class GapReport:
-    """Where the gap lies, which effect causes it and how far it shrinks; ``str()`` summarises."""
+    """Where the gap lies, which effect causes it and how far it shrinks; ``str()`` summarises.
+    ``verdict_kind``: the :class:`~.verdict.Verdict`; ``verdict``: its text (every explained
+    equation's, with remarks)."""
 
+    verdict_kind: Verdict
     verdict: str
     equations: tuple[EquationGap, ...]
     measures: dict
@@ -108,7 +118,7 @@ class GapReport:
     def to_dict(self) -> dict:
         out = {"version": SCHEMA_VERSION}
         out.update({k: v for k, v in asdict(self).items() if k != "series"})
-        out["equations"] = [asdict(g) for g in self.equations]
+        out["equations"] = [{**asdict(g), "verdict": g.verdict} for g in self.equations]
         return out
 
     def save(self, out: str | Path, plots: bool = True) -> Path:

@@ -21,19 +21,23 @@ import torch
 
 from ..api import adapt, nominal_parameters
 from ..config import Config
+from ..errors import ConfigError
 from ..derivatives import METHODS, estimate
 from ..result import EquationResult, adjusted_columns, format_component, format_equation
 from ..simulation_mode import FreeRun, free_runs
 from ..spec import Equation, ModelSpec, split_derivative
 from . import catalogue, confidence, localise, measures
-from .core import EXPLAINED, NO_GAP, NOT_EXPLAINED, signal_values
+from .localise import signal_values
 from .report import EquationGap, GapReport
+from .verdict import Verdict, overall
 
 RECORDS = {"train": "train", "validation": "held_out"}
 
 
-def diagnose_simulated(config: Config, base_dir: Path, options) -> GapReport:
-    """:func:`msam_torch.diagnose.diagnose` for a config evaluated by simulation."""
+def diagnose_simulated(config: Config, base_dir: Path, options, data=None, validation=None) -> GapReport:
+    """:func:`msam_torch.diagnose.diagnose` for a config evaluated by simulation; ``data`` and
+    ``validation``: CSV/Parquet paths of the training and held-out records."""
+    config = _with_files(config, data, validation)
     started = time.perf_counter()
     spec = ModelSpec.from_config(config.model)
     parameters = nominal_parameters(config, spec)
@@ -58,18 +62,29 @@ def diagnose_simulated(config: Config, base_dir: Path, options) -> GapReport:
             series[eq.target][f"free_run_{RECORDS[key]}"] = _trajectories(run)
         gaps.append(_equation_gap(eq, adapted, models["start"][e].theta, models["retuned"][e].theta, significant,
                                   rmse, target_rms, where["summary"], options, config))
-    named = [g for g in gaps if g.verdict.startswith("gap explained")]
-    verdict = "; ".join(f"{g.verdict} in {g.target}" for g in named) if named else (
-        NOT_EXPLAINED if significant else NO_GAP)
+    kind, verdict = overall(gaps, significant, name_targets=True)
     left = [f"{g.target} where {g.where['regions'][0]['rule']}" for g in gaps if g.where["flagged_fraction"] > 0]
     if left:
         verdict += f"; remaining gap not explained by the candidate set ({', '.join(left)})"
     data_info = {"train": result.data["source"], "evaluation": "simulation",
                  "held_out": "validation record" if "validation" in runs else "none (training record)",
                  "nominal_parameters": parameters, "simulation": result.data["simulation"]}
-    return GapReport(verdict=verdict, equations=tuple(gaps), measures=gap_measures, data=data_info,
+    return GapReport(verdict_kind=kind, verdict=verdict, equations=tuple(gaps), measures=gap_measures, data=data_info,
                      options=asdict(options), config=config.model_dump(mode="json"),
                      seconds=time.perf_counter() - started, series=series)
+
+
+def _with_files(config: Config, data, validation) -> Config:
+    """``config`` reading ``data`` and ``validation`` (files) as its training and validation records."""
+    if any(v is not None and not isinstance(v, (str, Path)) for v in (data, validation)):
+        raise ConfigError("adaptation.evaluation", "evaluation by simulation reads its records from files: "
+                          "give data and validation as CSV/Parquet paths")
+    update = {}
+    if data is not None:
+        update.update(file=str(Path(data).resolve()), system=None, validation=None)
+    if validation is not None:
+        update.update(validation_file=str(Path(validation).resolve()), validation=None)
+    return config.model_copy(update={"data": config.data.model_copy(update=update)}) if update else config
 
 
 def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retuned: list, significant: bool,
@@ -84,15 +99,15 @@ def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retu
     shown = known[0] if known else (index[0] if index else None)
     effect = names[shown] if significant and shown is not None else None
     if not significant:
-        verdict = NO_GAP
+        kind = Verdict.NO_GAP
     else:
-        verdict = EXPLAINED.format(effect) if known else NOT_EXPLAINED
+        kind = Verdict.EXPLAINED if known else Verdict.NOT_EXPLAINED
     label = lambda i: f"{eq.components[i].term.text} -> {eq.components[i].term.text}*{adapted.adjustments[i]}^gamma"
     components = [{"component": eq.components[i].term.text, "best_hypothesis": label(i), "effect": names[i],
                    "exponent": adapted.exponents[i]} for i in index]
     terms = [format_component(eq, i, None, None) for i in range(len(eq.components))]
     return EquationGap(
-        target=eq.target, significant=significant, verdict=verdict, effect=effect,
+        target=eq.target, significant=significant, verdict_kind=kind, effect=effect,
         hypothesis=label(shown) if shown is not None else "none", exponent=adapted.exponents[shown] if shown is not None else None,
         catalogue_exponent=adapted.exponents[shown] if effect not in (None, catalogue.NOT_CATALOGUED) else None,
         start_equation=format_equation(eq.target, list(start_theta), terms),

@@ -1,0 +1,65 @@
+"""Bootstrap trials of the hypothesis fit: moving time blocks of the weak-form rows and noise on
+their targets, all trials fitted as one batch on the leading axis, warm-started at the original
+fit (the best effect hypotheses and the re-fitted start only)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from ..candidates import EquationData
+from ..step import StepOptions
+from .hypotheses import Fitted, fit, heldout_rmse
+from .options import DiagnoseOptions
+from .weak import WeakForm
+
+
+@dataclass(frozen=True)
+class Bootstrap:
+    """The trials' weighted rows, fits of every hypothesis (T, C) and held-out RMSE (T, C); the
+    hypotheses not re-fitted are invalid with RMSE inf."""
+
+    data: EquationData
+    fitted: Fitted
+    rmse: torch.Tensor
+
+
+def block_weights(fit_rows: torch.Tensor, trials: int, blocks: int, generator: torch.Generator) -> torch.Tensor:
+    """Moving-block bootstrap as weights (trials, M): ``blocks`` contiguous row blocks of the fitted
+    rows are drawn with replacement; a row's weight counts how often its block was drawn."""
+    m = fit_rows.shape[0]
+    block_of = torch.div(torch.arange(m) * blocks, m, rounding_mode="floor")
+    draws = torch.randint(0, blocks, (trials, blocks), generator=generator)
+    counts = torch.zeros(trials, blocks, dtype=torch.float64).scatter_add_(1, draws, torch.ones(trials, blocks, dtype=torch.float64))
+    return counts[:, block_of].to(fit_rows.device) * fit_rows.to(torch.float64)
+
+
+def bootstrap(weak: WeakForm, choices: torch.Tensor, original: Fitted, rmse: torch.Tensor, noise: float, order: int,
+              options: DiagnoseOptions, step_options: StepOptions, generator: torch.Generator) -> Bootstrap | None:
+    """``options.bootstrap`` trials (None for none): row weights from :func:`block_weights`, target
+    noise of the measured signal's level ``noise`` integrated against the order-``order`` test
+    function; the re-fitted start and the ``options.bootstrap_hypotheses`` best valid effect
+    hypotheses (by held-out ``rmse``, (C,)) re-fitted with ``options.bootstrap_steps`` steps."""
+    if options.bootstrap <= 0:
+        return None
+    t = weak.signals["t"]
+    weights = block_weights(weak.fit_rows, options.bootstrap, options.blocks, generator)
+    row_noise = noise * float(torch.linalg.vector_norm(weak.tests.kernels[order]))
+    jitter = row_noise * torch.randn(options.bootstrap, weak.rows, generator=generator, dtype=t.dtype).to(t.device)
+    data = weak.weighted(weights, jitter)
+    effects = [int(c) for c in torch.argsort(rmse) if c != 0 and torch.isfinite(rmse[c])]
+    keep = torch.tensor([0] + effects[:options.bootstrap_hypotheses], device=t.device)
+    part = fit(data, choices[keep], original.gamma[:, keep], step_options, options.bootstrap_steps)
+    boot_rmse = torch.full((options.bootstrap, choices.shape[0]), torch.inf, dtype=t.dtype, device=t.device)
+    boot_rmse[:, keep] = heldout_rmse(weak.val_data, weak.val_rows, choices[keep], part)
+    return Bootstrap(data, _scatter(part, keep, choices.shape[0]), boot_rmse)
+
+
+def _scatter(part: Fitted, keep: torch.Tensor, c: int) -> Fitted:
+    """Bootstrap results of the hypotheses ``keep`` placed among all ``c`` (others invalid)."""
+    def full(x, fill):
+        out = torch.full((x.shape[0], c) + x.shape[2:], fill, dtype=x.dtype, device=x.device)
+        out[:, keep] = x
+        return out
+    return Fitted(full(part.gamma, 0.0), full(part.theta, 0.0), full(part.theta_fixed, 0.0),
+                  full(part.fitness, -torch.inf), full(part.invalid, True))

@@ -1,0 +1,130 @@
+"""One state equation's diagnosis, stage by stage: weak-form rows (:mod:`.weak`) -> every
+hypothesis fitted at once (:mod:`.hypotheses`) -> held-out RMSE -> bootstrap trials
+(:mod:`.bootstrap`) -> catalogue names (:mod:`.naming`) -> null rule and confidence
+(:mod:`.confidence`) -> residual structure left (:mod:`.structure`) -> verdict (:mod:`.verdict`)
+-> where the starting model fails (:mod:`.localise`)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from ..data import Dataset
+from ..result import format_component, format_equation
+from ..simulate import EquationModel
+from ..spec import Equation, ModelSpec
+from ..step import StepOptions
+from . import catalogue, confidence
+from .bootstrap import bootstrap
+from .compare import models
+from .hypotheses import (Fitted, Hypothesis, encode, enumerate_hypotheses, exponent, extended_equation, fit,
+                         fitted_text, heldout_rmse)
+from .localise import starting_where
+from .naming import named_exponent, snapped_names
+from .options import DiagnoseOptions
+from .report import EquationGap
+from .structure import structure_left
+from .verdict import Verdict, equation_verdict
+from .weak import WeakForm, target_source
+
+
+@dataclass(frozen=True)
+class EquationDiagnosis:
+    """The gap of one equation, its models for the comparison (:func:`.compare.compare`) and the
+    arrays its plots draw."""
+
+    gap: EquationGap
+    model: EquationModel
+    series: dict
+
+
+def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, held_out: Dataset | None,
+                      parameters: dict, options: DiagnoseOptions, generator: torch.Generator) -> EquationDiagnosis:
+    """The stages of the diagnosis of ``equation`` (module docstring); ``generator`` draws the
+    bootstrap trials."""
+    # weak-form rows of the equation extended by a copy of every adjustable component
+    extended = extended_equation(equation)
+    weak = WeakForm.build(extended, train.signals, None if held_out is None else held_out.signals,
+                          options.half_width, options.quadrature_samples, options.blocks)
+    t = weak.signals["t"]
+    # every hypothesis fitted at once, scored on the held-out rows
+    hypotheses = enumerate_hypotheses(equation)
+    choices, starts = encode(equation, hypotheses, t.device)
+    step_options = StepOptions(scaling="gauss_newton", step_size="one", theta="varpro", damping=options.damping)
+    original = fit(weak.data, choices, starts, step_options, options.steps)
+    rmse = heldout_rmse(weak.val_data, weak.val_rows, choices, original)[0]  # (C,)
+
+    # bootstrap trials: time blocks and measurement noise
+    source, order = target_source(extended, weak.signals)
+    noise = float(train.info.get("noise_level", {}).get(source, 0.0) or 0.0)
+    boot = bootstrap(weak, choices, original, rmse, noise, order, options, step_options, generator)
+
+    # catalogue names, exponents snapped into an entry's interval where that keeps the improvement
+    nominal = spec.theta(equation, parameters).to(t)
+    names, snapped = snapped_names(equation, hypotheses, weak, weak.data, choices, original, rmse.unsqueeze(0),
+                                   nominal, options.snap_keep)
+    names, snapped = names[0], snapped[0]
+
+    # null rule on the best effect; how often it wins the bootstrap trials
+    is_effect = torch.tensor([h.kind != "retuned" for h in hypotheses], device=t.device)
+    best = int(confidence.best_effect(rmse, is_effect))
+    target_rms = weak.target_rms
+    is_significant = bool(confidence.significant(rmse[best], rmse[0], target_rms, options.relative, options.absolute))
+    outcome = names[best] if is_significant else Verdict.NO_GAP.text()
+    trial_outcomes = []
+    if boot is not None:
+        boot_names, _ = snapped_names(equation, hypotheses, weak, boot.data, choices, boot.fitted, boot.rmse, nominal,
+                                      options.snap_keep)
+        trial_outcomes = confidence.outcomes(boot_names, boot.rmse, is_effect, target_rms, options)
+    sure = confidence.summary(rmse, names, best, is_significant, outcome, trial_outcomes)
+
+    # verdict (with the residual structure the effect leaves), and where the starting model fails
+    structure = structure_left(equation, weak, choices, original, best)
+    kind = equation_verdict(is_significant, outcome != catalogue.NOT_CATALOGUED, sure["win_frequency"], structure,
+                            options)
+    winner = best if is_significant else 0
+    where = starting_where(equation, weak.signals)
+
+    text = lambda c: fitted_text(extended, equation, choices, original, c, weak.scale)
+    gap = EquationGap(
+        target=equation.target, significant=is_significant, verdict_kind=kind,
+        effect=outcome if is_significant else None,
+        hypothesis=hypotheses[winner].label(equation),
+        exponent=exponent(hypotheses[winner], equation, original.gamma[0, winner]),
+        catalogue_exponent=named_exponent(hypotheses[winner], equation, names[winner], snapped[winner]),
+        start_equation=format_equation(equation.target, nominal.tolist(),
+                                       [format_component(equation, i, None, None) for i in range(len(equation.components))]),
+        retuned_equation=text(0), adapted_equation=text(winner), confidence=sure,
+        improvement={"retuned_rmse": float(rmse[0]), "adapted_rmse": float(rmse[winner]),
+                     "relative": float(1 - rmse[winner] / rmse[0]), "target_rms": target_rms,
+                     "rule": {"relative": options.relative, "absolute": options.absolute}},
+        structure_left=structure, components=_components(equation, hypotheses, rmse),
+        ranking=_ranking(equation, hypotheses, rmse, names, snapped, original, text), where=where["summary"],
+        estimator={"test_function": "bump (1-s^2)^4", "half_width": weak.tests.half_width * weak.tests.dt,
+                   "half_width_samples": weak.tests.half_width, "rows": weak.rows,
+                   "derivatives": train.info.get("derivatives")},
+    )
+    model = models(extended, equation, nominal, choices, original, boot, winner, is_effect, weak.scale)
+    return EquationDiagnosis(gap, model, {"where": where["series"]})
+
+
+def _components(equation: Equation, hypotheses: list[Hypothesis], rmse: torch.Tensor) -> list[dict]:
+    """Adjustable components ranked by how much their best hypothesis improves the held-out RMSE."""
+    components = []
+    for i in equation.adjustable:
+        touching = [c for c, h in enumerate(hypotheses) if h.component == i]
+        c = min(touching, key=lambda c: float(rmse[c]))
+        components.append({"component": equation.components[i].term.text, "best_hypothesis": hypotheses[c].label(equation),
+                           "heldout_rmse": float(rmse[c]), "improvement": float(1 - rmse[c] / rmse[0])})
+    return sorted(components, key=lambda d: -d["improvement"])
+
+
+def _ranking(equation: Equation, hypotheses: list[Hypothesis], rmse: torch.Tensor, names: list[str],
+             snapped: torch.Tensor, original: Fitted, text) -> list[dict]:
+    """Every valid hypothesis, best held-out RMSE first."""
+    ranked = [int(c) for c in torch.argsort(rmse) if torch.isfinite(rmse[c])]
+    return [{"hypothesis": hypotheses[c].label(equation), "kind": hypotheses[c].kind, "effect": names[c],
+             "exponent": exponent(hypotheses[c], equation, original.gamma[0, c]),
+             "catalogue_exponent": named_exponent(hypotheses[c], equation, names[c], snapped[c]),
+             "equation": text(c), "heldout_rmse": float(rmse[c]), "improvement": float(1 - rmse[c] / rmse[0])}
+            for c in ranked]
