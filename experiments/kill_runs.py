@@ -97,7 +97,8 @@ def main() -> None:
         cleaned = True
         for command in COMMANDS:  # the next run into a folder removes what a killed one left
             out = tmp / f"{command}_0"
-            assert start(command, out).wait() == 0
+            if start(command, out).wait() != 0:
+                raise SystemExit(f"msam {command} into a folder a killed run left failed")
             found = inspect(command, out)
             cleaned &= not any(found.values())
     print(f"truncated or invalid JSON files: {totals['invalid_json']}")

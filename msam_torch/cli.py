@@ -92,6 +92,11 @@ def _require_information(result, path: Path) -> None:
         if not all(math.isfinite(v) for v in values):
             raise NoInformation(f"{eq.target}: the fitted theta, exponents or measures are not finite "
                                 f"(check model.parameters and data.parametric_error); {path} records it")
+    for group in result.data.get("simulation", []):
+        for record, rows in group["free_run_rmse"].items():
+            if not all(math.isfinite(v) for label, row in rows.items() if label != "start" for v in row):
+                raise NoInformation(f"the free run of the adapted {', '.join(group['outputs'])} on the {record} "
+                                    f"record is not finite; {path} records it")
 
 
 def _diagnose(args) -> int:
