@@ -218,14 +218,17 @@ def _report(exc: MSAMError) -> int:
 
 def _internal_error(exc: Exception, verbose: bool) -> int:
     """One line naming the bug and where its traceback is (a temporary log, or stderr with -v)."""
+    where = "traceback above"
+    if not verbose:
+        try:
+            fd, log = tempfile.mkstemp(prefix="msam-error-", suffix=".log")
+            with os.fdopen(fd, "w") as handle:
+                traceback.print_exc(file=handle)
+            where = f"traceback in {log}; rerun with -v to print it"
+        except OSError:  # no writable temporary folder: the traceback goes to stderr
+            verbose = True
     if verbose:
         traceback.print_exc()
-        where = "traceback above"
-    else:
-        fd, log = tempfile.mkstemp(prefix="msam-error-", suffix=".log")
-        with os.fdopen(fd, "w") as handle:
-            traceback.print_exc(file=handle)
-        where = f"traceback in {log}; rerun with -v to print it"
     print(f"internal error (a bug in msam-torch, please report it): {type(exc).__name__}: {_one_line(exc)} "
           f"({where})", file=sys.stderr)
     return EXIT_BUG
