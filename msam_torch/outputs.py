@@ -35,6 +35,9 @@ def check_folder(out: str | Path, key: str = "--out", belongs: Callable[[Path], 
         foreign = sorted(p.name for p in out.iterdir() if not belongs(p)) if belongs and out.is_dir() else []
     except OSError as exc:
         raise ConfigError(key, f"{out} is not writable ({exc.strerror or type(exc).__name__})") from None
+    if belongs and Path.cwd().is_relative_to(out.absolute()):
+        raise ConfigError(key, f"{out} holds the current folder, which a new set of outputs cannot replace; "
+                               "give a sub-folder")
     if foreign:
         raise ConfigError(key, f"{out} holds other files ({', '.join(foreign[:3])}{', ...' if len(foreign) > 3 else ''}) "
                                "that a new set of outputs would replace; choose a new or empty folder")
@@ -48,12 +51,16 @@ def locked(out: str | Path, key: str = "--out") -> Iterator[Path]:
     Leftovers of killed runs (hidden staging folders beside ``out``, temporary files of
     :func:`write_atomic` inside it) are removed on entry; folders made to hold the lock are
     removed on exit if they stayed empty."""
-    out = Path(out)
+    out = Path(out).absolute()  # '.' too has a name and a parent
     made = [p for p in out.parents if not p.exists()]
-    out.parent.mkdir(parents=True, exist_ok=True)
     lock = out.parent / f".{out.name}.lock"
     while True:
-        handle = open(lock, "a")
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            handle = open(lock, "a")
+        except OSError as exc:
+            raise ConfigError(key, f"cannot lock {out}: {lock} cannot be written beside it "
+                                   f"({exc.strerror or type(exc).__name__})") from None
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -86,7 +93,7 @@ def locked(out: str | Path, key: str = "--out") -> Iterator[Path]:
 def one_set(out: str | Path) -> Iterator[Path]:
     """A fresh hidden folder beside ``out`` to write a set of files into; when the block ends
     normally it replaces ``out`` by renames, else it is removed."""
-    out = Path(out)
+    out = Path(out).absolute()
     out.parent.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.partial-"))
     try:

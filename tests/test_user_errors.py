@@ -288,6 +288,8 @@ CORPUS: dict[str, dict[str, tuple]] = {
         "out in /proc": (bundled, ["--out", "/proc/msam-out"], 2, ["--out", "not writable"]),
         "out holds other files (diagnose)": (lambda p: (bundled(p), ["--out", str(p)]), [], 2,
                                              ["--out", "holds other files", "config.yaml"], "diagnose"),
+        "diagnose into the current folder": (bundled, ["--out", "."], 2, ["--out", "holds the current folder"],
+                                             "diagnose"),
         "diagnose data missing": (bundled, ["--data", "{tmp}/none.csv"], 2, ["none.csv", "no such data file"], "diagnose"),
         "diagnose validate missing": (frame(), ["--validate", "{tmp}/none.csv"], 2, ["none.csv"], "diagnose"),
         "diagnose validate beside a simulated record": (bundled, ["--validate", "{tmp}/none.csv"], 2,
