@@ -30,7 +30,6 @@ import signal
 import sys
 import tempfile
 import time
-import warnings
 from collections import defaultdict
 from pathlib import Path
 
@@ -88,9 +87,7 @@ def run_case(seed: int, args) -> dict:
     if not args.no_sindy:
         started = time.perf_counter()
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                result = sindy.run(case)
+            result = sindy.run(case)
             row["sindy"] = {**sindy.score(result, case.truth),
                             "top": {t: r["terms"][0] if r["terms"] else None for t, r in result.items()}}
         except Exception as exc:

@@ -7,8 +7,8 @@ effect, or nothing, and returns a :class:`Case` with its truth, its starting-mod
 project's schema and its training and held-out records.
 """
 from . import score, sindy
-from .case import NOISE_LEVELS, SHARE_FLOOR, Case, generate
+from .case import NOISE_LEVELS, NULL_SHARE, SHARE_FLOOR, Case, generate, plan
 from .domains import DOMAINS
 from .effects import OUT_OF_CATALOGUE
 
-__all__ = ["score", "sindy", "generate", "Case", "DOMAINS", "OUT_OF_CATALOGUE", "NOISE_LEVELS", "SHARE_FLOOR"]
+__all__ = ["score", "sindy", "generate", "plan", "NULL_SHARE", "Case", "DOMAINS", "OUT_OF_CATALOGUE", "NOISE_LEVELS", "SHARE_FLOOR"]

@@ -68,28 +68,35 @@ class Case:
         return {target: r * scale[split_derivative(target)[0]] for target, r in rates.items()}
 
 
+def plan(seed: int, domains: tuple[str, ...] | None = None) -> tuple[str, str]:
+    """The domain and kind ('null', 'out_of_catalogue' or 'catalogued') of ``seed``'s case, drawn
+    from a stream of their own: redrawing an ill-posed system never changes them."""
+    rng = np.random.default_rng([seed, 1])
+    domain = str(rng.choice(sorted(domains or DOMAINS)))
+    u = rng.random()
+    kind = "null" if u < NULL_SHARE else "out_of_catalogue" if u < NULL_SHARE + OUT_OF_CATALOGUE_SHARE else "catalogued"
+    return domain, kind
+
+
 def generate(seed: int, domains: tuple[str, ...] | None = None, noise: float | None = None,
              samples: int = SAMPLES) -> Case:
     """The case of ``seed`` (``domains``: draw only from these; ``noise``: fix the noise level)."""
+    domain, kind = plan(seed, domains)
     rng = np.random.default_rng(seed)
-    names = sorted(domains or DOMAINS)
-    domain = str(rng.choice(names))
     builders = DOMAINS[domain]
     for _ in range(ATTEMPTS):
         system = builders[int(rng.integers(len(builders)))](rng)
-        case = _draw(rng, seed, system, noise, samples)
+        effects = [e for e in system.effects if e.catalogued == (kind == "catalogued")]
+        if kind != "null" and not effects:
+            continue  # an autonomous system has no input to distort
+        spec = None if kind == "null" else effects[int(rng.integers(len(effects)))]
+        case = _draw(rng, seed, system, spec, noise, samples)
         if case is not None:
             return case
     raise RuntimeError(f"seed {seed}: no well-posed case in {ATTEMPTS} draws of domain {domain}")
 
 
-def _draw(rng, seed, system: System, noise, samples) -> Case | None:
-    catalogued = [e for e in system.effects if e.catalogued]
-    outside = [e for e in system.effects if not e.catalogued]
-    u = rng.random()
-    spec = None if u < NULL_SHARE else (
-        outside[int(rng.integers(len(outside)))] if outside and u < NULL_SHARE + OUT_OF_CATALOGUE_SHARE
-        else catalogued[int(rng.integers(len(catalogued)))])
+def _draw(rng, seed, system: System, spec, noise, samples) -> Case | None:
     noise = float(rng.choice(NOISE_LEVELS)) if noise is None else noise
     sample_rate = rng.uniform(20.0, 100.0) / system.period
     t = np.arange(samples) / sample_rate
@@ -185,7 +192,9 @@ def _size(rng, system: System, spec, run, t) -> DrawnEffect | None:
 
 def _case(rng, seed, system: System, effect, noise, records, share, shares) -> Case:
     signal_names = list(system.states) + list(system.inputs)
-    exponents = {s: int(rng.integers(-3, 4)) for s in signal_names}
+    bases = sorted({split_derivative(s)[0] for s in signal_names})
+    exponents = dict(zip(bases, (int(k) for k in rng.integers(-3, 4, len(bases)))))
+    exponents = {s: exponents[split_derivative(s)[0]] for s in signal_names}  # x_dot in x's unit per second
     scale = {s: 10.0 ** k for s, k in exponents.items()}
     measured = list(system.measured[int(rng.integers(len(system.measured)))])
     frames, clean = {}, {}
@@ -239,6 +248,10 @@ def _truth(system: System, effect, scale: dict, share: float, shares: dict, true
         base = split_derivative(e.target)[0]
         m_scale = np.prod([scale[s] for s in e.component.split("*")])
         out["magnitude"] = float(effect.coefficient * scale[base] / m_scale / scale[e.function] ** effect.gamma)
+        out["smoothing"] = float(effect.smooth * scale[e.function])  # |f| -> sqrt(f^2 + s^2) for gamma < 0
+        if e.exchange:  # ... - magnitude_exchange * e|e|^gamma
+            out["exchange"] = e.exchange
+            out["exchange_magnitude"] = float(effect.coefficient * scale[base] / scale[e.exchange] ** (1 + effect.gamma))
         out["targets"] = [e.target]
     else:
         out["targets"] = e.target.split(",")
