@@ -22,7 +22,6 @@ Options: --noise 0.01 0.05 (cycle these levels instead of drawing), --domains me
 from __future__ import annotations
 
 import argparse
-import inspect
 import json
 import math
 import os
@@ -37,7 +36,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import torch  # noqa: E402
 
 from msam_torch.allocator import keep_freed_memory  # noqa: E402
-from msam_torch.diagnose import NO_GAP, diagnose  # noqa: E402
+from msam_torch.diagnose import Verdict, diagnose  # noqa: E402
 from msam_torch.result import _finite  # noqa: E402
 from msam_torch.zoo import DOMAINS, generate, score, sindy  # noqa: E402
 
@@ -45,10 +44,8 @@ LOW_NOISE = 0.01  # "<= 1 % noise" rows of the acceptance figures
 
 
 def run_diagnosis(config: Path, train: Path, validation: Path):
-    """``diagnose`` on a case written to files: held-out record passed as ``validation=`` (or
-    ``validate=`` by the older signature)."""
-    held_out = "validation" if "validation" in inspect.signature(diagnose).parameters else "validate"
-    return diagnose(config, data=train, **{held_out: validation})
+    """``diagnose`` on a case written to files."""
+    return diagnose(config, data=train, validation=validation)
 
 
 class Timeout(Exception):
@@ -182,7 +179,7 @@ def outcome(row: dict) -> str:
     if "error" in ours:
         return "error"
     verdicts = {t: e["verdict"] for t, e in ours["equations"].items()}
-    flagged = [t for t, v in verdicts.items() if v != NO_GAP]
+    flagged = [t for t, v in verdicts.items() if v != Verdict.NO_GAP.text()]
     named = [t for t, v in verdicts.items() if score.explained(v)]
     if truth["kind"] != "catalogued":
         return "no gap" if not flagged else "named an effect" if named else "gap, not explained"

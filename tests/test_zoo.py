@@ -7,7 +7,7 @@ import pytest
 
 from experiments.zoo import run_diagnosis
 from msam_torch.config import load_config
-from msam_torch.diagnose import NO_GAP
+from msam_torch.diagnose import Verdict
 from msam_torch.spec import split_derivative
 from msam_torch.zoo import DOMAINS, NULL_SHARE, SHARE_FLOOR, generate, plan, score, sindy
 from msam_torch.zoo.simulate import rms, unabsorbed
@@ -145,7 +145,7 @@ def test_diagnosis_on_a_null_and_a_torricelli_case(tmp_path):
     path = null.write(tmp_path / "null")
     report = run_diagnosis(path, tmp_path / "null" / "train.csv", tmp_path / "null" / "validation.csv")
     figures = score.score(report, null.truth)
-    assert report.verdict == NO_GAP and figures["no_gap"] and figures["theta_ok"]
+    assert report.verdict_kind is Verdict.NO_GAP and figures["no_gap"] and figures["theta_ok"]
 
     tanks = generate(4)
     assert tanks.truth["name"] == "Torricelli outflow" and tanks.truth["targets"] == ["h2_dot"]
