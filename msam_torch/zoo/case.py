@@ -1,0 +1,259 @@
+"""One zoo case from an integer seed: a drawn system, a withheld effect (or none), units,
+excitations, measured subset, noise; its truth, starting-model config and data frames.
+
+``generate(seed)`` is deterministic. A draw that is not well posed (solver failure, unbounded or
+non-positive trajectory, withheld effect below :data:`SHARE_FLOOR` of the dynamics) is drawn
+again from the same random stream.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from ..spec import split_derivative
+from . import excitation
+from .domains import DOMAINS
+from .effects import DrawnEffect
+from .simulate import dense_grid, effect_share, rms, signals, simulate, unabsorbed
+from .system import System
+
+NULL_SHARE, OUT_OF_CATALOGUE_SHARE = 0.25, 0.15  # probabilities of a null and of an out-of-catalogue case
+NOISE_LEVELS = (0.0, 0.005, 0.01, 0.02, 0.05)  # fraction of each measured signal's standard deviation
+SHARE_FLOOR = 0.05  # the withheld effect's unabsorbed share of its equation's rate, at least
+SHARE_RANGE = (0.1, 0.3)  # the share a catalogued additive effect is sized to
+SAMPLES = 2000
+PERTURBATION = 0.2  # nominal parameters off by up to 20 %
+ATTEMPTS = 40
+
+
+@dataclass(frozen=True)
+class Case:
+    """A withheld-effect case: ``truth``, the starting-model ``config`` (the project's schema),
+    the ``train`` and ``validation`` records (time column ``t`` + measured columns, case units),
+    their noise-free versions with every state and the inputs the system feels (``clean``),
+    and ``metadata`` (quantities, unit exponents, excitations, noise, measured subset)."""
+
+    seed: int
+    truth: dict
+    config: dict
+    train: pd.DataFrame
+    validation: pd.DataFrame
+    metadata: dict
+    clean: dict = field(repr=False, default_factory=dict)
+    system: System | None = field(repr=False, default=None)
+    effect: DrawnEffect | None = field(repr=False, default=None)
+
+    def write(self, folder: str | Path) -> Path:
+        """``config.yaml``, ``train.csv``, ``validation.csv`` and ``truth.json`` in ``folder``."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        self.train.to_csv(folder / "train.csv", index=False, float_format="%.12g")
+        self.validation.to_csv(folder / "validation.csv", index=False, float_format="%.12g")
+        (folder / "truth.json").write_text(json.dumps({"truth": self.truth, "metadata": self.metadata}, indent=1))
+        path = folder / "config.yaml"
+        path.write_text(yaml.safe_dump(self.config, sort_keys=False))
+        return path
+
+    def rates(self, frame: pd.DataFrame) -> dict:
+        """The true right-hand side (case units) at the rows of a clean frame."""
+        scale = self.metadata["scale"]
+        values = {name: frame[name].to_numpy() / scale[name] for name in scale}
+        values.update({u: frame[f"{u}_felt"].to_numpy() / scale[u] for u in self.system.inputs})
+        rates = self.system.state_rates(values, self.effect)
+        return {target: r * scale[split_derivative(target)[0]] for target, r in rates.items()}
+
+
+def plan(seed: int, domains: tuple[str, ...] | None = None) -> tuple[str, str]:
+    """The domain and kind ('null', 'out_of_catalogue' or 'catalogued') of ``seed``'s case, drawn
+    from a stream of their own: redrawing an ill-posed system never changes them."""
+    rng = np.random.default_rng([seed, 1])
+    domain = str(rng.choice(sorted(domains or DOMAINS)))
+    u = rng.random()
+    kind = "null" if u < NULL_SHARE else "out_of_catalogue" if u < NULL_SHARE + OUT_OF_CATALOGUE_SHARE else "catalogued"
+    return domain, kind
+
+
+def generate(seed: int, domains: tuple[str, ...] | None = None, noise: float | None = None,
+             samples: int = SAMPLES) -> Case:
+    """The case of ``seed`` (``domains``: draw only from these; ``noise``: fix the noise level)."""
+    domain, kind = plan(seed, domains)
+    rng = np.random.default_rng(seed)
+    builders = DOMAINS[domain]
+    for _ in range(ATTEMPTS):
+        system = builders[int(rng.integers(len(builders)))](rng)
+        effects = [e for e in system.effects if e.catalogued == (kind == "catalogued")]
+        if kind != "null" and not effects:
+            continue  # an autonomous system has no input to distort
+        spec = None if kind == "null" else effects[int(rng.integers(len(effects)))]
+        case = _draw(rng, seed, system, spec, noise, samples)
+        if case is not None:
+            return case
+    raise RuntimeError(f"seed {seed}: no well-posed case in {ATTEMPTS} draws of domain {domain}")
+
+
+def _draw(rng, seed, system: System, spec, noise, samples) -> Case | None:
+    noise = float(rng.choice(NOISE_LEVELS)) if noise is None else noise
+    sample_rate = rng.uniform(20.0, 100.0) / system.period
+    t = np.arange(samples) / sample_rate
+    runs = []
+    for label in ("train", "validation"):
+        inputs, info = _inputs(rng, system, t, sample_rate)
+        initial = _initial(rng, system)
+        runs.append((label, inputs, initial, info))
+    effect = _size(rng, system, spec, runs[0], t)
+    if spec is not None and effect is None:
+        return None
+    records, shares = {}, {}
+    for label, inputs, initial, info in runs:
+        smooth = _smooth(info)
+        felt = {k: (effect.shape_input(v) if effect is not None and k == effect.input else v) for k, v in inputs.items()}
+        states = simulate(system, t, felt, initial, effect, smooth)
+        if states is None or not _well_posed(system, states, simulate(system, t, inputs, initial, None, smooth)):
+            return None
+        values = signals(system, states, inputs, t)
+        felt_values = signals(system, {}, felt, t)
+        shares[label] = effect_share(system, values, effect, felt_values) if effect is not None else {}
+        records[label] = (t, values, felt_values, info)
+    share = max(shares["train"].values(), default=0.0)
+    if effect is not None and share < SHARE_FLOOR:
+        return None
+    return _case(rng, seed, system, effect, noise, records, share, shares)
+
+
+def _inputs(rng, system: System, t, sample_rate) -> tuple[dict, dict]:
+    dense = dense_grid(t)
+    inputs, info = {}, {}
+    for k, (u, (offset, amplitude)) in enumerate(system.drive.items()):
+        kind = None if k == 0 else "multisine"  # the drive is random; further inputs (ambient) drift slowly
+        e, info[u] = excitation.draw(rng, dense, sample_rate if k == 0 else 0.05 * sample_rate, kind)
+        inputs[u] = offset + amplitude * e
+    return inputs, info
+
+
+def _initial(rng, system: System) -> dict:
+    if not system.autonomous:
+        return dict(system.initial)
+    return {x: float(np.exp(rng.uniform(*np.log(system.initial_spread[x])))) for x in system.states}
+
+
+def _well_posed(system: System, states: dict, reference: dict | None) -> bool:
+    """Bounded (within 50x the range of the starting model's ``reference`` trajectory), varying,
+    and positive where it must be."""
+    if reference is None:
+        return False
+    for x, v in states.items():
+        span = np.ptp(reference[x]) + abs(np.mean(reference[x]))
+        if np.ptp(v) < 1e-6 * span or np.abs(v - np.mean(reference[x])).max() > 50 * span:
+            return False
+        if x in system.positive and v.min() <= 1e-3 * np.abs(v).max():
+            return False
+    return True
+
+
+def _smooth(info: dict) -> frozenset:
+    """The inputs interpolated by cubic splines: the multisines (steps and PRBS: linearly)."""
+    return frozenset(u for u, d in info.items() if d["kind"] == "multisine")
+
+
+def _size(rng, system: System, spec, run, t) -> DrawnEffect | None:
+    """The drawn effect with its coefficient: additive terms sized to a share in :data:`SHARE_RANGE`
+    of the rate along the starting model's trajectory; a multiplicative one equal to the starting
+    component at the operating point; input nonlinearities scaled to the drive's amplitude."""
+    if spec is None:
+        return None
+    gamma = float(rng.uniform(*spec.exponent))
+    _, inputs, initial, info = run
+    start = simulate(system, t, inputs, initial, None, _smooth(info))
+    if start is None:
+        return None
+    values = signals(system, start, inputs, t)
+    if spec.form in ("additive", "multiplicative"):
+        smooth = 1e-3 * rms(values[spec.function])
+        unit = DrawnEffect(spec, 1.0, gamma, smooth)
+        eq = system.equation(spec.target)
+        if spec.form == "multiplicative":
+            theta = eq.theta[eq.terms.index(spec.component)]
+            return replace(unit, coefficient=theta * abs(system.initial[spec.function]) ** -gamma)
+        left = unabsorbed(eq, values, unit.contribution(spec.target, values))
+        rate = system.state_rates(values)[spec.target]
+        share = rng.uniform(*SHARE_RANGE)
+        return replace(unit, coefficient=np.sign(spec.sign) * share * rms(rate) / max(rms(left), 1e-300))
+    u = spec.component
+    offset, amplitude = system.drive[u]
+    width = amplitude * rng.uniform(*{"dead zone": (0.1, 0.3), "saturation": (0.3, 0.7), "backlash": (0.1, 0.3),
+                                      "hysteresis": (0.2, 0.5)}[spec.form])
+    return DrawnEffect(spec, width=width, input=u, centre=offset)
+
+
+def _case(rng, seed, system: System, effect, noise, records, share, shares) -> Case:
+    signal_names = list(system.states) + list(system.inputs)
+    bases = sorted({split_derivative(s)[0] for s in signal_names})
+    exponents = dict(zip(bases, (int(k) for k in rng.integers(-3, 4, len(bases)))))
+    exponents = {s: exponents[split_derivative(s)[0]] for s in signal_names}  # x_dot in x's unit per second
+    scale = {s: 10.0 ** k for s, k in exponents.items()}
+    measured = list(system.measured[int(rng.integers(len(system.measured)))])
+    frames, clean = {}, {}
+    for label, (t, values, felt, info) in records.items():
+        clean[label] = pd.DataFrame({"t": t, **{s: values[s] * scale[s] for s in signal_names},
+                                     **{f"{u}_felt": felt[u] * scale[u] for u in system.inputs}})
+        columns = {"t": clean[label]["t"].to_numpy()}
+        for s in measured:
+            x = clean[label][s].to_numpy()
+            columns[s] = x + noise * x.std() * rng.standard_normal(x.size)
+        columns.update({u: clean[label][u].to_numpy() for u in system.inputs})
+        frames[label] = pd.DataFrame(columns)
+    config, true_theta = _config(rng, system, scale, measured)
+    truth = _truth(system, effect, scale, share, shares, true_theta)
+    metadata = {"domain": system.domain, "system": system.name, "quantities": dict(system.quantities),
+                "unit_exponents": exponents, "scale": scale, "noise": noise, "measured": measured,
+                "sample_time": float(clean["train"]["t"].iloc[1]), "samples": len(frames["train"]),
+                "excitation": {label: rec[3] for label, rec in records.items()}}
+    return Case(seed, truth, config, frames["train"], frames["validation"], metadata, clean, system, effect)
+
+
+def _config(rng, system: System, scale: dict, measured: list) -> tuple[dict, dict]:
+    """Starting model in the case's units: true theta rescaled, then each off by up to 20 %."""
+    parameters, equations, true_theta = {}, [], {}
+    adjustments = [f"abs({x})" for x in system.states]
+    for eq in system.equations:
+        base = split_derivative(eq.target)[0]
+        components, true_theta[eq.target] = [], {}
+        for term, theta in zip(eq.terms, eq.theta):
+            value = theta * scale[base] / np.prod([scale[s] for s in term.split("*")])
+            name = f"p{len(parameters) + 1}"
+            parameters[name] = float(value * (1 + rng.uniform(-PERTURBATION, PERTURBATION)))
+            true_theta[eq.target][term] = float(value)
+            driven = any(s in system.inputs for s in term.split("*"))
+            components.append({"term": term, "theta": name, **({"adjustable": False} if driven else {})})
+        equations.append({"target": eq.target, "components": components, "adjustments": adjustments})
+    config = {"model": {"states": list(system.states), "inputs": list(system.inputs), "parameters": parameters,
+                        "equations": equations},
+              "data": {"file": "train.csv", "validation_file": "validation.csv", "time": "t", "derivatives": "savgol",
+                       "columns": {s: s for s in measured + list(system.inputs)}}}
+    return config, true_theta
+
+
+def _truth(system: System, effect, scale: dict, share: float, shares: dict, true_theta: dict) -> dict:
+    if effect is None:
+        return {"kind": "null", "name": None, "share": 0.0, "theta": true_theta}
+    out = {"kind": "catalogued" if effect.effect.catalogued else "out_of_catalogue", "share": share,
+           "share_by_equation": shares["train"], "share_floor": SHARE_FLOOR, "theta": true_theta, **effect.describe()}
+    e = effect.effect
+    if e.form in ("additive", "multiplicative"):
+        base = split_derivative(e.target)[0]
+        m_scale = np.prod([scale[s] for s in e.component.split("*")])
+        out["magnitude"] = float(effect.coefficient * scale[base] / m_scale / scale[e.function] ** effect.gamma)
+        out["smoothing"] = float(effect.smooth * scale[e.function])  # |f| -> sqrt(f^2 + s^2) for gamma < 0
+        if e.exchange:  # ... - magnitude_exchange * e|e|^gamma
+            out["exchange"] = e.exchange
+            out["exchange_magnitude"] = float(effect.coefficient * scale[base] / scale[e.exchange] ** (1 + effect.gamma))
+        out["targets"] = [e.target]
+    else:
+        out["targets"] = e.target.split(",")
+        out["width"] = float(effect.width * scale[effect.input])
+    return out

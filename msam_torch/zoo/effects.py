@@ -1,0 +1,84 @@
+"""Withheld effects as drawn: a catalogued power-law term with its coefficient and exponent, or an
+out-of-catalogue input nonlinearity (dead zone, saturation, backlash, hysteresis) applied to the
+drive before it reaches the system.
+
+Backlash is the play operator; hysteresis a Prandtl-Ishlinskii sum of play operators. Both depend
+on the input's history only, so they are applied to the densely sampled input before the
+simulation (:mod:`.case`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .system import Effect, power, term_value
+
+OUT_OF_CATALOGUE = ("dead zone", "saturation", "backlash", "hysteresis")
+
+
+@dataclass(frozen=True)
+class DrawnEffect:
+    """An :class:`Effect` with its coefficient ``c`` (SI units), exponent and smoothing scale."""
+
+    effect: Effect
+    coefficient: float = 0.0
+    gamma: float = 0.0
+    smooth: float = 0.0
+    width: float = 0.0  # input nonlinearities: dead-zone half-width, saturation level or play width
+    input: str = ""
+    centre: float = 0.0  # input nonlinearities act on the deviation from the drive's operating point
+
+    def replaces(self, target: str, term: str) -> bool:
+        e = self.effect
+        return e.form == "multiplicative" and e.target == target and e.component == term
+
+    def contribution(self, target: str, values: dict):
+        e = self.effect
+        if e.form not in ("additive", "multiplicative") or e.target != target:
+            return 0.0
+        value = power(term_value(e.component, values), values[e.function], self.gamma, self.smooth)
+        if e.exchange:  # radiation exchange: c (T|T|^g - Ta|Ta|^g)
+            value = value - power(values[e.exchange], values[e.exchange], self.gamma, self.smooth)
+        return self.coefficient * value
+
+    def shape_input(self, u: np.ndarray) -> np.ndarray:
+        """The input the system feels (input nonlinearities only; else ``u`` itself)."""
+        form, w, d = self.effect.form, self.width, u - self.centre
+        if form == "dead zone":
+            return self.centre + np.sign(d) * np.maximum(np.abs(d) - w, 0.0)
+        if form == "saturation":
+            return self.centre + np.clip(d, -w, w)
+        if form == "backlash":
+            return play(u, w)
+        if form == "hysteresis":
+            return np.mean([play(u, r) for r in w * np.linspace(0.2, 1.0, 5)], axis=0)
+        return u
+
+    def describe(self) -> dict:
+        e = self.effect
+        out = {"name": e.name, "catalogued": e.catalogued, "form": e.form}
+        if e.form in ("additive", "multiplicative"):
+            out.update(target=e.target, component=e.component, function=e.function, exponent=self.gamma,
+                       coefficient_si=self.coefficient)
+        else:
+            out.update(input=self.input, width_si=self.width)
+        return out
+
+
+def play(u: np.ndarray, width: float) -> np.ndarray:
+    """The play (backlash) operator of half-width ``width``, started centred on ``u[0]``."""
+    out = np.empty_like(u)
+    y = u[0]
+    for k, v in enumerate(u):
+        y = min(max(y, v - width), v + width)
+        out[k] = y
+    return out
+
+
+def input_effects(inputs: tuple[str, ...], targets: tuple[str, ...]) -> tuple[Effect, ...]:
+    """The out-of-catalogue effects available to a system driven through ``inputs[0]``."""
+    if not inputs:
+        return ()
+    return tuple(Effect(name, target=",".join(targets), component=inputs[0], form=name, catalogued=False)
+                 for name in OUT_OF_CATALOGUE)

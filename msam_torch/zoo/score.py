@@ -1,0 +1,88 @@
+"""Scoring a diagnosis (a :class:`~msam_torch.diagnose.GapReport`, or its JSON dict) against a
+zoo case's truth.
+
+- strict top-1: the withheld effect's equation says "gap explained by" the truth's name, on the
+  truth's component and function, exponent within :data:`TOLERANCE` of the truth's (additive or
+  multiplicative: both are the power law on that component), and no other equation is flagged;
+- null cases: "no significant gap" overall;
+- out-of-catalogue cases: a *confident wrong name* is any "gap explained by" verdict;
+- the theta re-fitted starting model: every theta within 3 % of the truth (null cases);
+- held-out free runs: the re-fitted start no worse than the nominal one (1 % slack), and a
+  *diverged* run (NRMSE not finite or above :data:`DIVERGED`) beside a verdict that is not
+  "inconclusive".
+"""
+from __future__ import annotations
+
+import math
+import re
+
+TOLERANCE = 0.2  # exponent tolerance of the catalogue (msam_torch.diagnose.catalogue.TOLERANCE)
+THETA_TOLERANCE = 0.03
+DIVERGED = 10.0  # held-out free-run NRMSE beyond which a run counts as diverged
+NO_WORSE_SLACK = 0.01
+_TERM = re.compile(r"([+-])?\s*(\d[\d.]*(?:e[+-]?\d+)?)\s+(\S+)")
+
+
+def _as_dict(report) -> dict:
+    return report if isinstance(report, dict) else report.to_dict()
+
+
+def explained(verdict: str) -> bool:
+    return verdict.startswith("gap explained")
+
+
+def parse_equation(text: str) -> dict:
+    """``'x_ddot = -0.5 x_dot - 6 x + 1 u'`` -> ``{'x_dot': -0.5, 'x': -6.0, 'u': 1.0}``."""
+    rhs = text.split("=", 1)[1]
+    out = {}
+    for sign, number, term in _TERM.findall(rhs):
+        out[term] = -float(number) if sign == "-" else float(number)
+    return out
+
+
+def _component(hypothesis: str) -> str:
+    return hypothesis.split(" ", 1)[0]
+
+
+def effect_matches(gap: dict, truth: dict) -> bool:
+    """``gap`` (one equation of a report) names the truth's effect in its form (see module doc)."""
+    if not explained(gap["verdict"]) or not gap.get("effect") or truth["name"].lower() not in gap["effect"].lower():
+        return False
+    hypothesis = gap["hypothesis"]
+    return (_component(hypothesis) == truth["component"] and f"abs({truth['function']})" in hypothesis
+            and gap["exponent"] is not None and abs(gap["exponent"] - truth["exponent"]) <= TOLERANCE)
+
+
+def score(report, truth: dict) -> dict:
+    """The figures of one case (None where a figure does not apply)."""
+    r = _as_dict(report)
+    gaps = {g["target"]: g for g in r["equations"]}
+    kind = truth["kind"]
+    out = {"verdict": r["verdict"], "top1": None, "no_gap": None, "confident_wrong": None, "theta_ok": None}
+    if kind == "catalogued":
+        others_quiet = all(not g["significant"] for t, g in gaps.items() if t not in truth["targets"])
+        out["top1"] = others_quiet and all(effect_matches(gaps[t], truth) for t in truth["targets"])
+    elif kind == "null":
+        out["no_gap"] = not any(g["significant"] for g in gaps.values())
+        out["theta_ok"] = theta_within(gaps, truth["theta"], THETA_TOLERANCE)
+    else:
+        out["confident_wrong"] = any(explained(g["verdict"]) for g in gaps.values())
+    free = r.get("measures", {}).get("free_run", {}).get("held_out", {}).get("nrmse")
+    if free:
+        nrmse = {k: float(v) if v is not None else math.inf for k, v in free.items()}
+        diverged = any(not math.isfinite(v) or v > DIVERGED for v in nrmse.values())
+        out["diverged_beside_verdict"] = diverged and "inconclusive" not in r["verdict"]
+        out["retuned_no_worse"] = (math.isfinite(nrmse["retuned"])
+                                   and nrmse["retuned"] <= (1 + NO_WORSE_SLACK) * nrmse["start"])
+        out["free_run_nrmse"] = nrmse
+    return out
+
+
+def theta_within(gaps: dict, theta: dict, tolerance: float) -> bool:
+    """Every re-fitted theta of every equation within ``tolerance`` (relative) of the truth."""
+    for target, true in theta.items():
+        fitted = parse_equation(gaps[target]["retuned_equation"])
+        for term, value in true.items():
+            if term not in fitted or abs(fitted[term] - value) > tolerance * abs(value):
+                return False
+    return True

@@ -1,0 +1,78 @@
+"""The truth simulated with ``scipy.integrate.solve_ivp`` (tight tolerances, inputs interpolated
+on a dense grid), independently of :mod:`msam_torch.simulate`; and the share of the dynamics a
+withheld effect contributes."""
+from __future__ import annotations
+
+from functools import partial
+
+import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.interpolate import CubicSpline
+
+from .system import System, term_value
+
+DENSE = 8  # dense input samples per sample interval
+TOLERANCE = 1e-8  # relative; absolute: 1e-2 of it times each state's typical size
+
+
+def simulate(system: System, t: np.ndarray, inputs: dict, initial: dict, effect=None,
+             smooth: frozenset = frozenset()) -> dict | None:
+    """States on grid ``t`` under ``inputs`` (arrays on ``t``'s dense grid ``dense_grid(t)``,
+    interpolated by cubic splines for the ``smooth`` ones, else linearly); None when the solver
+    fails or a trajectory leaves the finite numbers."""
+    dense = dense_grid(t)
+    interpolants = {u: CubicSpline(dense, v) if u in smooth else partial(np.interp, xp=dense, fp=v)
+                    for u, v in inputs.items()}
+    derivative = system.derivative_map()
+    states = list(system.states)
+    atol = [TOLERANCE * 1e-2 * system.magnitude[x] for x in states]
+
+    def rhs(time, y):
+        values = {x: v for x, v in zip(states, y)}
+        values.update({u: float(interpolants[u](time)) for u in system.inputs})
+        rates = system.state_rates(values, effect)
+        return [values[derivative[x]] if derivative[x] in values else rates[derivative[x]] for x in states]
+
+    dt = t[1] - t[0]
+    solution = solve_ivp(rhs, (t[0], t[-1]), [initial[x] for x in states], t_eval=t, method="LSODA",
+                         rtol=TOLERANCE, atol=atol, max_step=dt)
+    if not solution.success or not np.all(np.isfinite(solution.y)) or solution.y.shape[1] != t.size:
+        return None
+    return dict(zip(states, solution.y))
+
+
+def dense_grid(t: np.ndarray) -> np.ndarray:
+    return np.linspace(t[0], t[-1], (t.size - 1) * DENSE + 1)
+
+
+def signals(system: System, states: dict, inputs: dict, t: np.ndarray) -> dict:
+    """States and the inputs resampled from the dense grid onto ``t``."""
+    dense = dense_grid(t)
+    return {**states, **{u: np.interp(t, dense, inputs[u]) for u in system.inputs}}
+
+
+def effect_share(system: System, values: dict, effect, felt: dict | None = None) -> dict:
+    """Per equation: RMS of the part of the effect's contribution that re-fitting the starting
+    model's theta cannot absorb (least-squares residual on the starting components), relative to
+    the RMS of the true rate. ``felt``: the inputs the system feels (input nonlinearities)."""
+    truth_values = {**values, **(felt or {})}
+    true_rates = system.state_rates(truth_values, effect)
+    start_rates = system.state_rates(values)
+    out = {}
+    for eq in system.equations:
+        left = unabsorbed(eq, values, true_rates[eq.target] - start_rates[eq.target])
+        out[eq.target] = float(rms(left) / rms(true_rates[eq.target]))
+    return out
+
+
+def unabsorbed(eq, values: dict, contribution) -> np.ndarray:
+    """``contribution`` less its least-squares fit by the starting components of ``eq``."""
+    shape = np.shape(values[next(iter(values))])
+    contribution = np.broadcast_to(contribution, shape)
+    basis = np.stack([np.broadcast_to(term_value(m, values), shape) for m in eq.terms], -1)
+    coef, *_ = np.linalg.lstsq(basis, contribution, rcond=None)
+    return contribution - basis @ coef
+
+
+def rms(x) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
