@@ -37,8 +37,10 @@ def _run(args) -> int:
     out = Path(args.out)
     tracker = None if args.no_tensorboard else TensorBoardTracker(out / "tensorboard")
     bars = []
+    limit = _TimeLimit(args.max_seconds)
 
     def on_trainer(trainer, equation):
+        limit.attach(trainer)
         bar = tqdm(desc=equation.target, unit="step", disable=args.quiet or not sys.stderr.isatty(), leave=False)
         bars.append(bar)
         trainer.add_callback("round_robin_step", lambda t, **p: bar.update(1))
@@ -55,6 +57,7 @@ def _run(args) -> int:
             tracker.close()
     if tracker is not None:
         tracker.save_config(dump_config(config))
+    result = limit.record(result)
     path = result.save(out / "result.json")
     _require_information(result, path)
     for eq in result.equations:
@@ -77,6 +80,35 @@ def _run(args) -> int:
                   + " -> ".join(f"{', '.join(f'{v:.4g}' for v in rows[label])} ({label})" for label in rows))
     print(f"wrote {path}")
     return 0
+
+
+class _TimeLimit:
+    """``--max-seconds``: once passed, the trainers stop at their next step and keep the best state
+    found (Algorithm 1 cut short); the result records it."""
+
+    def __init__(self, seconds: float | None):
+        import time
+
+        self.clock = time.monotonic
+        self.seconds, self.end, self.stopped = seconds, None if seconds is None else time.monotonic() + seconds, False
+
+    def attach(self, trainer) -> None:
+        if self.end is not None:
+            self._check(trainer)
+            trainer.add_callback("round_robin_step", lambda t, **p: self._check(t))
+            trainer.add_callback("refinement_step", lambda t, **p: self._check(t))
+
+    def _check(self, trainer) -> None:
+        if self.clock() >= self.end:
+            trainer.stop_requested = self.stopped = True
+
+    def record(self, result):
+        if not self.stopped:
+            return result
+        from dataclasses import replace
+
+        print(f"stopped after --max-seconds {self.seconds:g}: the best state found so far is reported", file=sys.stderr)
+        return replace(result, data={**result.data, "stopped": {"max_seconds": self.seconds}})
 
 
 def _require_information(result, path: Path) -> None:
@@ -162,6 +194,8 @@ def _parse(argv) -> argparse.Namespace:
     run.add_argument("--out", help="output folder (default runs/<config name>)")
     run.add_argument("--no-tensorboard", action="store_true", help="do not write TensorBoard event files")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.add_argument("--max-seconds", type=_seconds, help="stop the adaptation after this many seconds, keeping "
+                                                            "the best state found (result.json records it)")
     run.set_defaults(handler=_run, out_default="{stem}")
     diag = commands.add_parser("diagnose", parents=[common], help="say where the starting model of CONFIG misses "
                                "its data, which unmodelled effect causes it and how far adding it shrinks the gap")
@@ -189,6 +223,16 @@ def _positive_int(text: str) -> int:
         value = 0
     if value < 1:
         raise argparse.ArgumentTypeError(f"{text!r} is not a positive whole number")
+    return value
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value >= 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number of seconds")
     return value
 
 

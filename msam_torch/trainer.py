@@ -77,6 +77,7 @@ class Trainer:
         self.evaluator = evaluator
         self.diagnostics = diagnostics
         self.callbacks: dict[str, list[Callable]] = defaultdict(list)
+        self.stop_requested = False  # set by a callback (a time limit): every loop ends, keeping its best state
 
     def add_callback(self, event: str, fn: Callable) -> None:
         self.callbacks[event].append(fn)
@@ -145,6 +146,8 @@ class Trainer:
             best_fitness = initial_best
         best = state
         for iteration in range(steps):
+            if self.stop_requested:
+                break
             result = evaluator.step(selection, state, current, self.options, conditions=self.diagnostics)
             state = result.state
             current = evaluator.evaluate(selection, state, self.options)

@@ -71,3 +71,17 @@ def test_same_config_and_seed_give_identical_files_apart_from_timing(tmp_path, c
     markdown = [[line for line in (tmp_path / f"diagnosis_{name}" / "report.md").read_text().splitlines()
                  if not line.startswith("_Computed in")] for name in "ab"]
     assert markdown[0] == markdown[1] and len(markdown[0]) > 20
+
+
+def test_max_seconds_stops_at_the_next_step_keeping_the_best_state(tmp_path, capsys):
+    out = tmp_path / "zero"
+    assert main(["run", HARMONIC, "--out", str(out), "--no-tensorboard", "--max-seconds", "0"]) == 0
+    assert "stopped after --max-seconds 0" in capsys.readouterr().err
+    result = json.loads((out / "result.json").read_text())
+    assert result["data"]["stopped"] == {"max_seconds": 0.0}
+    assert result["equations"][0]["exponents"] == [0.0, 0.0, None]  # no step taken: the starting state
+    out = tmp_path / "long"  # a million round-robin steps, bounded by the limit
+    assert main(["run", HARMONIC, "--out", str(out), "--no-tensorboard", "--max-seconds", "1",
+                 "adaptation.round_robin_steps=1000000"]) == 0
+    eq = json.loads((out / "result.json").read_text())["equations"][0]
+    assert eq["final"]["fitness"] > eq["start"]["fitness"] and eq["exponents"] != [0.0, 0.0, None]
