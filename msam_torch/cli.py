@@ -20,7 +20,7 @@ from pathlib import Path
 
 from . import __version__
 from .allocator import keep_freed_memory
-from .errors import MSAMError, NoInformation
+from .errors import Interrupted, MSAMError, NoInformation
 
 EXIT_BUG = 1
 EXIT_INTERRUPTED = 130
@@ -37,10 +37,10 @@ def _run(args) -> int:
     out = Path(args.out)
     tracker = None if args.no_tensorboard else TensorBoardTracker(out / "tensorboard")
     bars = []
-    limit = _TimeLimit(args.max_seconds)
+    stop = _Stop(args.max_seconds)
 
     def on_trainer(trainer, equation):
-        limit.attach(trainer)
+        stop.attach(trainer)
         bar = tqdm(desc=equation.target, unit="step", disable=args.quiet or not sys.stderr.isatty(), leave=False)
         bars.append(bar)
         trainer.add_callback("round_robin_step", lambda t, **p: bar.update(1))
@@ -49,7 +49,8 @@ def _run(args) -> int:
             tracker.attach(trainer, equation.target, lambda c: ", ".join(candidate_label(equation, c)))
 
     try:
-        result = adapt(config, on_trainer=on_trainer, base_dir=Path(args.config).parent)
+        with stop:
+            result = adapt(config, on_trainer=on_trainer, base_dir=Path(args.config).parent)
     finally:
         for bar in bars:
             bar.close()
@@ -57,7 +58,7 @@ def _run(args) -> int:
             tracker.close()
     if tracker is not None:
         tracker.save_config(dump_config(config))
-    result = limit.record(result)
+    result = stop.record(result)
     path = result.save(out / "result.json")
     _require_information(result, path)
     for eq in result.equations:
@@ -79,36 +80,59 @@ def _run(args) -> int:
             print(f"free-run RMSE of {', '.join(group['outputs'])} on the {record} record: "
                   + " -> ".join(f"{', '.join(f'{v:.4g}' for v in rows[label])} ({label})" for label in rows))
     print(f"wrote {path}")
+    if stop.interrupted:
+        raise Interrupted(f"interrupted (Ctrl-C): the best state found so far is in {path}")
     return 0
 
 
-class _TimeLimit:
-    """``--max-seconds``: once passed, the trainers stop at their next step and keep the best state
-    found (Algorithm 1 cut short); the result records it."""
+class _Stop:
+    """Ends the adaptation early, keeping the best state found (Algorithm 1 cut short): after
+    ``--max-seconds``, or at the first Ctrl-C while it runs (a second one aborts). The trainers stop
+    at their next step; the result records why."""
 
     def __init__(self, seconds: float | None):
         import time
 
-        self.clock = time.monotonic
-        self.seconds, self.end, self.stopped = seconds, None if seconds is None else time.monotonic() + seconds, False
+        self.clock, self.seconds = time.monotonic, seconds
+        self.end = None if seconds is None else time.monotonic() + seconds
+        self.trainers, self.interrupted, self.timed_out = [], False, False
+
+    def __enter__(self):
+        import signal
+
+        def first_interrupt(signum, frame):
+            self.interrupted = True
+            signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C aborts
+            for trainer in self.trainers:
+                trainer.stop_requested = True
+
+        self.previous = signal.signal(signal.SIGINT, first_interrupt)
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+
+        signal.signal(signal.SIGINT, self.previous)
 
     def attach(self, trainer) -> None:
-        if self.end is not None:
-            self._check(trainer)
-            trainer.add_callback("round_robin_step", lambda t, **p: self._check(t))
-            trainer.add_callback("refinement_step", lambda t, **p: self._check(t))
+        self.trainers.append(trainer)
+        self._check(trainer)
+        trainer.add_callback("round_robin_step", lambda t, **p: self._check(t))
+        trainer.add_callback("refinement_step", lambda t, **p: self._check(t))
 
     def _check(self, trainer) -> None:
-        if self.clock() >= self.end:
-            trainer.stop_requested = self.stopped = True
+        self.timed_out |= self.end is not None and self.clock() >= self.end
+        trainer.stop_requested = self.interrupted or self.timed_out
 
     def record(self, result):
-        if not self.stopped:
+        if not (self.interrupted or self.timed_out):
             return result
         from dataclasses import replace
 
-        print(f"stopped after --max-seconds {self.seconds:g}: the best state found so far is reported", file=sys.stderr)
-        return replace(result, data={**result.data, "stopped": {"max_seconds": self.seconds}})
+        why = {"interrupted": True} if self.interrupted else {"max_seconds": self.seconds}
+        if self.timed_out and not self.interrupted:
+            print(f"stopped after --max-seconds {self.seconds:g}: the best state found so far is reported", file=sys.stderr)
+        return replace(result, data={**result.data, "stopped": why})
 
 
 def _require_information(result, path: Path) -> None:
@@ -250,7 +274,7 @@ def _dispatch(args) -> int:
         try:
             return args.handler(args)
         except BaseException as exc:
-            if created and not isinstance(exc, (NoInformation, BrokenPipeError)):
+            if created and not isinstance(exc, (NoInformation, Interrupted, BrokenPipeError)):
                 shutil.rmtree(out, ignore_errors=True)
             raise
 

@@ -4,7 +4,8 @@ Every problem with a user's input (config, model spec, data, command-line option
 subclass of :class:`MSAMError` whose message names the offending place: a config key path such
 as ``model.equations[0].components[1].theta``, an option such as ``--out``, or a file with its
 column and row. ``exit_status`` is what ``msam`` exits with: 2 for bad input, 3 for a run that
-finished without learning anything (its result is still written and records why).
+finished without learning anything (its result is still written and records why), 130 for a run
+stopped by Ctrl-C (its best state so far written).
 """
 
 
@@ -32,3 +33,9 @@ class NoInformation(MSAMError):
     fitted values are not finite); the result file records it."""
 
     exit_status = 3
+
+
+class Interrupted(MSAMError):
+    """Ctrl-C ended the adaptation early; the best state found so far is written."""
+
+    exit_status = 130

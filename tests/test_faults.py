@@ -29,7 +29,7 @@ def wait_for(path: Path, process: subprocess.Popen, limit: float = 120) -> None:
         time.sleep(0.05)
 
 
-def test_a_second_run_refuses_and_ctrl_c_ends_the_first_in_one_line(tmp_path):
+def test_a_second_run_refuses_and_ctrl_c_stops_the_first_keeping_its_best_state(tmp_path):
     out = tmp_path / "out"
     first = msam("run", HARMONIC, "--out", str(out), "adaptation.round_robin_steps=100000", cwd=tmp_path)
     try:
@@ -43,8 +43,11 @@ def test_a_second_run_refuses_and_ctrl_c_ends_the_first_in_one_line(tmp_path):
         _, err = first.communicate(timeout=120)
     finally:
         first.kill()
-    assert first.returncode == 130 and err == "interrupted\n", err
-    assert sorted(p.name for p in tmp_path.iterdir()) == []  # the folder it created and its lock are gone
+    assert first.returncode == 130 and err.count("\n") == 1 and "interrupted (Ctrl-C)" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # its lock is gone, its best state written
+    result = json.loads((out / "result.json").read_text())
+    assert result["data"]["stopped"] == {"interrupted": True}
+    assert result["equations"][0]["final"]["fitness"] >= result["equations"][0]["start"]["fitness"]
 
 
 def test_a_closed_stdout_ends_quietly_with_the_files_written(tmp_path):
