@@ -99,6 +99,11 @@ class _Stop:
 
     def __enter__(self):
         import signal
+        import threading
+
+        self.previous = None
+        if threading.current_thread() is not threading.main_thread():  # only the main thread handles signals
+            return self
 
         def first_interrupt(signum, frame):
             self.interrupted = True
@@ -112,7 +117,8 @@ class _Stop:
     def __exit__(self, *exc):
         import signal
 
-        signal.signal(signal.SIGINT, self.previous)
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)
 
     def attach(self, trainer) -> None:
         self.trainers.append(trainer)
