@@ -37,7 +37,7 @@ from msam_torch.api import make_trainer, nominal_parameters, step_options
 from msam_torch.candidates import EquationData
 from msam_torch.config import load_config
 from msam_torch.data import load_datasets
-from msam_torch.simulation_mode import SimulationEvaluator, groups, prepare
+from msam_torch.simulation import SimulationEvaluator, groups, prepare
 from msam_torch.spec import ModelSpec
 from msam_torch.trainer import Trainer
 

@@ -10,6 +10,7 @@ import torch
 from .candidates import EquationData, equation_choices
 from .config import Config, load_config
 from .data import Table, load_datasets
+from .simulation import adapt_simulation
 from .result import EquationResult, RunResult, format_component, format_equation
 from .spec import Equation, ModelSpec
 from .step import StepOptions
@@ -52,9 +53,8 @@ def adapt(config: Config | dict | str, overrides: list[str] = (),
         config = load_config(config, overrides)
     spec = ModelSpec.from_config(config.model)
     if config.adaptation.evaluation == "simulation":
-        from .simulation_mode import adapt_simulation
-
-        return adapt_simulation(config, spec, nominal_parameters(config, spec), Path(base_dir), on_trainer)
+        return adapt_simulation(config, spec, nominal_parameters(config, spec), Path(base_dir),
+                                trainer_factory or make_trainer, on_trainer, data, validation)
     dtype = getattr(torch, config.adaptation.dtype)
     device = torch.device(config.adaptation.device)
     train, held_out = load_datasets(config.data, spec, base_dir, dtype=dtype, frame=data, validation_frame=validation)

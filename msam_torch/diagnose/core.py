@@ -21,7 +21,7 @@ from ..config import Config, load_config
 from ..data import Dataset, load_datasets, measured_dataset, read_frame
 from ..errors import ConfigError, DataError
 from ..result import format_component, format_equation
-from ..simulate import EquationModel, simulate
+from ..simulation import EquationModel, simulate_equations as simulate
 from ..spec import Equation, ModelSpec, split_derivative
 from ..step import StepOptions, solve_theta
 from . import catalogue, confidence, localise, measures

@@ -23,7 +23,7 @@ from ..api import adapt, nominal_parameters
 from ..config import Config
 from ..derivatives import METHODS, estimate
 from ..result import EquationResult, adjusted_columns, format_component, format_equation
-from ..simulation_mode import FreeRun, free_runs
+from ..simulation import FreeRun, free_runs
 from ..spec import Equation, ModelSpec, split_derivative
 from . import catalogue, confidence, localise, measures
 from .core import EXPLAINED, NO_GAP, NOT_EXPLAINED, signal_values
@@ -32,19 +32,21 @@ from .report import EquationGap, GapReport
 RECORDS = {"train": "train", "validation": "held_out"}
 
 
-def diagnose_simulated(config: Config, base_dir: Path, options) -> GapReport:
-    """:func:`msam_torch.diagnose.diagnose` for a config evaluated by simulation."""
+def diagnose_simulated(config: Config, base_dir: Path, options, data=None, validation=None) -> GapReport:
+    """:func:`msam_torch.diagnose.diagnose` for a config evaluated by simulation. ``data`` and
+    ``validation`` (a path relative to ``base_dir``, a DataFrame, a mapping of arrays or a
+    :class:`~msam_torch.data.Dataset`) replace the config's training and validation records."""
     started = time.perf_counter()
     spec = ModelSpec.from_config(config.model)
     parameters = nominal_parameters(config, spec)
-    result = adapt(config, base_dir=base_dir)
+    result = adapt(config, base_dir=base_dir, data=data, validation=validation)
     retuned_theta = {t: th for group in result.data["simulation"] for t, th in group["retuned_theta"].items()}
     unadjusted = lambda eq, theta: EquationResult(eq.target, "", "", [None] * len(eq.components),
                                                   [None] * len(eq.components), theta, {}, {}, [], 0)
     models = {"start": [unadjusted(eq, spec.theta(eq, parameters).tolist()) for eq in spec.equations],
               "retuned": [unadjusted(eq, retuned_theta[eq.target]) for eq in spec.equations],
               "adapted": result.equations}
-    runs = free_runs(config, spec, models, base_dir)
+    runs = free_runs(config, spec, models, base_dir, data=data, validation=validation)
     gap_measures = {"one_step": {}, "free_run": {RECORDS[k]: _free_run_measures(run) for k, run in runs.items()}}
     held_out = runs.get("validation", runs["train"])
     rmse = torch.sqrt(((held_out.simulated - held_out.record.outputs) ** 2).mean((-1, -2)))  # start, retuned, adapted

@@ -1,0 +1,104 @@
+"""The simulation evaluator of :class:`~msam_torch.trainer.Trainer`: candidates judged by their
+simulated outputs (the paper's section 2 alternative to Eq. 6).
+
+The step is Eq. 15-18 on the simulated output: the structural sensitivities are the exact
+``d yhat / d gamma_i`` in dM-scaled units, ``Phi_i = d yhat / d gamma_i * dgamma / dM_i`` (Eq. 16,
+``scaling: dm``), or in exponent units (``gauss_newton``); theta (``theta: varpro``) and the
+initial states (``simulation.initial: estimate``) are stepped jointly with the exponents
+(Gauss-Newton on the stacked Jacobian). The line search simulates all its step sizes in one batch.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import torch
+
+from ..fitness import correlation, fitness, sum_abs_error
+from ..sensitivity import condition_number, structural_sensitivities
+from ..step import LINE_SEARCH_STEPS, Evaluation, State, StepOptions, StepResult, advance, lstsq, step_size
+from ..trainer import measures
+from .least_squares import fit_parameters
+from .problem import SimulationData, SimulationSelection, packed, unpacked, usable
+from .sensitivities import jacobians
+
+
+def _initial(selection: SimulationSelection, state: State) -> torch.Tensor:
+    if state.initial is not None:
+        return state.initial
+    initial = selection.data.initial
+    return initial.unsqueeze(1).expand(state.gamma.shape[:2] + initial.shape[-1:])
+
+
+class SimulationEvaluator:
+    """Evaluator for :class:`~msam_torch.trainer.Trainer`: candidates judged by their simulation."""
+
+    @staticmethod
+    def evaluate(selection: SimulationSelection, state: State, options: StepOptions) -> Evaluation:
+        initial = _initial(selection, state)
+        yhat = selection.data.output(state.gamma, selection.choice(state), state.theta, state.theta_fixed, initial)
+        y = selection.y
+        score = torch.where(state.diverged, torch.full_like(state.diverged, -torch.inf, dtype=yhat.dtype), fitness(y, yhat))
+        return Evaluation(yhat.new_zeros(yhat.shape[:2] + (0, 0)), yhat, state.theta, state.theta_fixed, score,
+                          sum_abs_error(y, yhat), correlation(yhat, y), initial)
+
+    @staticmethod
+    def step(selection: SimulationSelection, state: State, current: Evaluation, options: StepOptions,
+             conditions: bool = True) -> StepResult:
+        """Eq. 15-18 on the simulated output, theta and initial states stepped jointly."""
+        data = selection.data
+        q, p = state.theta.shape[-1], state.theta_fixed.shape[-1]
+        z = packed(state, _initial(selection, state))
+        free = data.free.clone()
+        if options.theta == "fixed":
+            free[: q + p] = False
+        if data.refit_steps:  # theta and initial states refitted for the current exponents (variable projection by iteration)
+            z, yhat = fit_parameters(data, selection.choice(state), state.gamma, z, free, data.refit_steps)
+            current = replace(current, yhat=yhat, fitness=torch.where(state.diverged, current.fitness, fitness(selection.y, yhat)))
+        jac = jacobians(data, selection.choice(state), state.gamma, z, options.dgamma, free)
+        blown = ~usable(current.yhat).all(-1, keepdim=True)  # (T, C, 1): its simulation left the float range
+        eps = torch.where(blown, torch.zeros_like(current.yhat), selection.y - current.yhat)
+        change = jac.gamma * options.dgamma  # first-order yhat(Gamma + dgamma e_i) - yhat(Gamma)
+        phi_scaled = structural_sensitivities(change, jac.dm)
+        phi_unscaled = jac.gamma
+        phi_gamma = phi_scaled if options.scaling == "dm" else phi_unscaled
+        phi = torch.where(blown.unsqueeze(-1), 0.0, torch.cat([phi_gamma, jac.z[..., free]], -1))
+        delta = lstsq(phi, eps, options.damping, options.rcond)
+        delta_gamma, delta_z = delta[..., :q], torch.zeros_like(z)
+        delta_z[..., free] = delta[..., q:]
+        trial_fitness = _line_fitness(selection, state, z, delta_gamma, delta_z)
+        mu = step_size(current.fitness, (phi @ delta.unsqueeze(-1)).squeeze(-1), eps, options, trial_fitness)
+        gamma, diverged = advance(state.gamma, mu, delta_gamma, state.diverged, current.fitness, options)
+        new_z = torch.where(diverged.unsqueeze(-1), z, z + mu.unsqueeze(-1) * delta_z)
+        theta, theta_fixed, new_initial = unpacked(new_z, q, p)
+        new_state = State(gamma, theta, theta_fixed, diverged, new_initial)
+        cond_scaled, cond_unscaled = (condition_number(phi_scaled), condition_number(phi_unscaled)) if conditions else (None, None)
+        return StepResult(new_state, mu, delta_gamma, jac.dm, cond_scaled, cond_unscaled)
+
+    @staticmethod
+    def starting_measures(data: SimulationData, theta: torch.Tensor, theta_fixed: torch.Tensor) -> dict:
+        """Measures of the unadjusted starting model (theta as given, initial states of ``data``)."""
+        yhat = data.output(torch.zeros_like(theta), torch.full_like(theta, data.model.unadjusted, dtype=torch.long),
+                           theta, theta_fixed, data.initial)
+        return measures(data.y, yhat)
+
+
+def _line_fitness(selection: SimulationSelection, state: State, z, delta_gamma, delta_z):
+    """``trial_fitness(mu, among)`` of the step rule: the fitness (T, C) of every candidate moved by
+    ``mu``. The first call simulates that step size and every smaller one of the backtracking
+    ladder in one batch; the later calls read them."""
+    q, p = state.theta.shape[-1], state.theta_fixed.shape[-1]
+    known: dict[float, torch.Tensor] = {}
+
+    def trial_fitness(mu, among):
+        if mu not in known:
+            mus = [m for m in LINE_SEARCH_STEPS if m <= mu] if mu in LINE_SEARCH_STEPS else [mu]
+            scale = torch.tensor(mus, dtype=z.dtype, device=z.device).unsqueeze(-1)  # (L, 1)
+            gamma = state.gamma.unsqueeze(-2) + scale * delta_gamma.unsqueeze(-2)  # (T, C, L, Qa)
+            moved = z.unsqueeze(-2) + scale * delta_z.unsqueeze(-2)
+            choice = selection.choice(state).unsqueeze(-2).expand(gamma.shape)
+            out = selection.data.output(gamma, choice, *unpacked(moved, q, p))
+            values = fitness(selection.y.unsqueeze(-2), out)  # (T, C, L)
+            known.update({m: values[..., k] for k, m in enumerate(mus)})
+        return known[mu]
+
+    return trial_fitness

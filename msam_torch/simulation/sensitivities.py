@@ -1,0 +1,69 @@
+"""Sensitivities of the simulated outputs by forward-mode differentiation (``torch.func.jvp``)
+through the fixed-step solver: exact derivatives with respect to the exponents, theta and the
+initial states, and dM (Eq. 15) from the exact theta sensitivities at ``Gamma`` and at
+``Gamma + dgamma e_i``.
+
+Every direction is a row of one batched simulation: the primal point is repeated per direction
+and each row carries its own tangent, so a single ``jvp`` (no ``vmap``) gives them all.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch.func import jvp
+
+from .problem import SimulationData, unpacked, usable
+
+
+@dataclass(frozen=True)
+class Jacobians:
+    gamma: torch.Tensor  # (T, C, N, Qa) d yhat / d gamma (zero columns when not structural)
+    z: torch.Tensor  # (T, C, N, Z) d yhat / d z (zero columns for parameters that are not free)
+    dm: torch.Tensor  # (T, C, Qa) Eq. 15
+    base: torch.Tensor  # (T, C, N) the output at the base point
+
+
+def jacobians(data: SimulationData, choice, gamma, z, dgamma: float, free: torch.Tensor | None = None,
+              structural: bool = True) -> Jacobians:
+    """Sensitivities of the output at (gamma, z) (T, C, .) for the ``free`` entries of z (default
+    ``data.free``) and, when ``structural``, the exponents, the adjustable theta and dM: rows
+    ``e_j`` on z for the free and adjustable-theta columns, ``e_i`` on gamma, and for dM (Eq. 15)
+    ``e_j`` on the adjustable theta at ``gamma + dgamma e_i``."""
+    q, zq = gamma.shape[-1], z.shape[-1]
+    p = zq - q - data.initial.shape[-1]
+    perturb = (data.free if free is None else free).clone()
+    if structural:
+        perturb[:q] = True
+    columns = torch.nonzero(perturb).flatten().tolist()
+    eye_q = torch.eye(q, dtype=z.dtype, device=z.device)
+    eye_z = torch.eye(zq, dtype=z.dtype, device=z.device)
+    nq = q if structural else 0
+    points = [gamma] * (len(columns) + nq) + [gamma + dgamma * eye_q[i] for i in range(nq) for _ in range(nq)]
+    tangent_gamma = [torch.zeros_like(gamma)] * len(columns) + [eye_q[i].expand_as(gamma) for i in range(nq)] \
+        + [torch.zeros_like(gamma)] * (nq * nq)
+    tangent_z = [eye_z[j].expand_as(z) for j in columns] + [torch.zeros_like(z)] * nq \
+        + [eye_z[j].expand_as(z) for _ in range(nq) for j in range(nq)]
+    if not points:
+        base = data.output(gamma, choice, *unpacked(z, q, p))
+        zero = base.new_zeros(base.shape + (zq,))
+        return Jacobians(zero[..., :q], zero, torch.zeros_like(gamma), base)
+    gammas, tangent_gamma = torch.stack(points, -2), torch.stack(tangent_gamma, -2)  # (T, C, R, Qa)
+    zs, tangent_z = z.unsqueeze(-2).expand(gammas.shape[:-1] + (zq,)).contiguous(), torch.stack(tangent_z, -2)
+    choices = choice.unsqueeze(-2).expand(gammas.shape)
+    out, derivative = jvp(lambda g, zz: data.output(g, choices, *unpacked(zz, q, p)), (gammas, zs),
+                          (tangent_gamma, tangent_z))
+    base = out[..., 0, :]
+    derivative = torch.where(usable(out) & usable(derivative), derivative, torch.zeros_like(derivative))
+    k = len(columns)
+    jz = torch.zeros(z.shape[:-1] + (base.shape[-1], zq), dtype=z.dtype, device=z.device)
+    jz[..., columns] = derivative[..., :k, :].mT
+    if not structural:
+        return Jacobians(jz[..., :0], jz, torch.zeros_like(gamma), base)
+    jgamma = derivative[..., k: k + q, :].mT
+    s = jz[..., :q]  # (T, C, N, Qa) sensitivity to the adjustable theta at Gamma
+    s_perturbed = derivative[..., k + q:, :].unflatten(-2, (q, q))  # (T, C, i, j, N) at Gamma + dgamma e_i
+    numerator = torch.linalg.vector_norm(s_perturbed.mT - s.unsqueeze(-3), dim=-1).sum(-1)
+    denominator = torch.linalg.vector_norm(s, dim=-1).sum(-1, keepdim=True)
+    dm = numerator / denominator.clamp_min(torch.finfo(z.dtype).tiny)
+    return Jacobians(jgamma, jz, dm, base)
