@@ -1,17 +1,21 @@
-"""Sensitivities of the simulated outputs by forward-mode differentiation (``torch.func.jvp``)
-through the fixed-step solver: exact derivatives with respect to the exponents, theta and the
-initial states, and dM (Eq. 15) from the exact theta sensitivities at ``Gamma`` and at
-``Gamma + dgamma e_i``.
+"""Sensitivities of the simulated outputs by forward-mode differentiation through the fixed-step
+solver: exact derivatives with respect to the exponents, theta and the initial states, and dM
+(Eq. 15) from the exact theta sensitivities at ``Gamma`` and at ``Gamma + dgamma e_i``.
 
 Every direction is a row of one batched simulation: the primal point is repeated per direction
-and each row carries its own tangent, so a single ``jvp`` (no ``vmap``) gives them all.
+and each row carries its own tangent, so one forward pass gives them all. The forward mode is
+torch's dual tensors (:mod:`torch.autograd.forward_ad`, the engine under ``torch.func.jvp``) with
+every tensor the simulation reads made dual: an operation between a dual tensor and a plain one
+takes a slow path (its missing tangent is a zero tensor handled in Python), which made
+``torch.func.jvp`` through torchdiffeq's ``rk4`` 15 to 30 times the cost of the simulation itself;
+with all operands dual it is about twice (experiments/algebraic_vs_simulation.py measures the whole).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
-from torch.func import jvp
+import torch.autograd.forward_ad as forward_ad
 
 from .problem import SimulationData, unpacked, usable
 
@@ -51,8 +55,16 @@ def jacobians(data: SimulationData, choice, gamma, z, dgamma: float, free: torch
     gammas, tangent_gamma = torch.stack(points, -2), torch.stack(tangent_gamma, -2)  # (T, C, R, Qa)
     zs, tangent_z = z.unsqueeze(-2).expand(gammas.shape[:-1] + (zq,)).contiguous(), torch.stack(tangent_z, -2)
     choices = choice.unsqueeze(-2).expand(gammas.shape)
-    out, derivative = jvp(lambda g, zz: data.output(g, choices, *unpacked(zz, q, p)), (gammas, zs),
-                          (tangent_gamma, tangent_z))
+    with forward_ad.dual_level():
+        dual = forward_ad.make_dual
+        constant = lambda v: None if v is None else dual(v.contiguous(), torch.zeros_like(v))
+        record = data.record
+        record = replace(record, t=constant(record.t), external=constant(record.external),
+                         pieces=constant(record.pieces))
+        problem = replace(data, record=record, scale=constant(data.scale), limits=constant(data.limits))
+        out, derivative = forward_ad.unpack_dual(problem.output(dual(gammas, tangent_gamma), choices,
+                                                                *unpacked(dual(zs, tangent_z), q, p)))
+    derivative = torch.zeros_like(out) if derivative is None else derivative
     base = out[..., 0, :]
     derivative = torch.where(usable(out) & usable(derivative), derivative, torch.zeros_like(derivative))
     k = len(columns)
