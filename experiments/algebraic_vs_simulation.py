@@ -94,7 +94,7 @@ def simulation(config, spec, sets) -> tuple[list, list, list]:
         prepared = prepare(config, spec, group, sets, CONFIGS)
         model = prepared.data.model
         trainer = Trainer(step_options(config), a.round_robin_steps, a.refinement_steps, a.chunk_size,
-                          evaluator=SimulationEvaluator)
+                          evaluator=SimulationEvaluator())
         fit = trainer.fit(prepared.data, prepared.theta, prepared.theta_fixed, choices=model.choices())
         for k in range(len(sets)):
             chosen = [model.functions[int(f)].text for f in fit.choices[fit.winner[k]]]

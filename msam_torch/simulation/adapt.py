@@ -78,10 +78,11 @@ def prepare(config: Config, spec: ModelSpec, group: tuple[Equation, ...], parame
 def simulation_trainer(config: Config, factory: Callable[[Config], Trainer]) -> Trainer:
     """The trainer of ``factory`` judging candidates by simulation."""
     trainer = factory(config)
-    if not isinstance(trainer, Trainer) or trainer.evaluator not in (Algebraic, SimulationEvaluator):
+    if not isinstance(trainer, Trainer) or not (trainer.evaluator is Algebraic
+                                                or isinstance(trainer.evaluator, SimulationEvaluator)):
         raise ConfigError("trainer_factory", "simulation-based evaluation needs a Trainer with the default "
                           f"evaluator, got {type(trainer).__name__} with {getattr(trainer, 'evaluator', None)!r}")
-    trainer.evaluator = SimulationEvaluator
+    trainer.evaluator = SimulationEvaluator()
     return trainer
 
 

@@ -30,19 +30,21 @@ def _initial(selection: SimulationSelection, state: State) -> torch.Tensor:
 
 
 class SimulationEvaluator:
-    """Evaluator for :class:`~msam_torch.trainer.Trainer`: candidates judged by their simulation."""
+    """Evaluator for :class:`~msam_torch.trainer.Trainer`: candidates judged by their simulation.
+    The evaluation of the state a line-search step moved to is kept from its batch, so the
+    trainer's evaluation of that state simulates nothing."""
 
-    @staticmethod
-    def evaluate(selection: SimulationSelection, state: State, options: StepOptions) -> Evaluation:
+    def __init__(self):
+        self._moved: tuple[State, Evaluation] | None = None
+
+    def evaluate(self, selection: SimulationSelection, state: State, options: StepOptions) -> Evaluation:
+        if self._moved is not None and self._moved[0] is state:
+            return self._moved[1]
         initial = _initial(selection, state)
         yhat = selection.data.output(state.gamma, selection.choice(state), state.theta, state.theta_fixed, initial)
-        y = selection.y
-        score = torch.where(state.diverged, torch.full_like(state.diverged, -torch.inf, dtype=yhat.dtype), fitness(y, yhat))
-        return Evaluation(yhat.new_zeros(yhat.shape[:2] + (0, 0)), yhat, state.theta, state.theta_fixed, score,
-                          sum_abs_error(y, yhat), correlation(yhat, y), initial)
+        return _evaluation(selection, state, yhat, initial)
 
-    @staticmethod
-    def step(selection: SimulationSelection, state: State, current: Evaluation, options: StepOptions,
+    def step(self, selection: SimulationSelection, state: State, current: Evaluation, options: StepOptions,
              conditions: bool = True) -> StepResult:
         """Eq. 15-18 on the simulated output, theta and initial states stepped jointly."""
         data = selection.data
@@ -65,12 +67,17 @@ class SimulationEvaluator:
         delta = lstsq(phi, eps, options.damping, options.rcond)
         delta_gamma, delta_z = delta[..., :q], torch.zeros_like(z)
         delta_z[..., free] = delta[..., q:]
-        trial_fitness = _line_fitness(selection, state, z, delta_gamma, delta_z)
-        mu = step_size(current.fitness, (phi @ delta.unsqueeze(-1)).squeeze(-1), eps, options, trial_fitness)
+        line = LineSearch(selection, state, z, delta_gamma, delta_z)
+        mu = step_size(current.fitness, (phi @ delta.unsqueeze(-1)).squeeze(-1), eps, options, line.fitness)
         gamma, diverged = advance(state.gamma, mu, delta_gamma, state.diverged, current.fitness, options)
         new_z = torch.where(diverged.unsqueeze(-1), z, z + mu.unsqueeze(-1) * delta_z)
         theta, theta_fixed, new_initial = unpacked(new_z, q, p)
         new_state = State(gamma, theta, theta_fixed, diverged, new_initial)
+        if line.outputs:
+            yhat = current.yhat
+            for m, out in line.outputs.items():
+                yhat = torch.where(((mu == m) & ~diverged).unsqueeze(-1), out, yhat)
+            self._moved = (new_state, _evaluation(selection, new_state, yhat, new_initial))
         cond_scaled, cond_unscaled = (condition_number(phi_scaled), condition_number(phi_unscaled)) if conditions else (None, None)
         return StepResult(new_state, mu, delta_gamma, jac.dm, cond_scaled, cond_unscaled)
 
@@ -82,23 +89,34 @@ class SimulationEvaluator:
         return measures(data.y, yhat)
 
 
-def _line_fitness(selection: SimulationSelection, state: State, z, delta_gamma, delta_z):
-    """``trial_fitness(mu, among)`` of the step rule: the fitness (T, C) of every candidate moved by
-    ``mu``. The first call simulates that step size and every smaller one of the backtracking
-    ladder in one batch; the later calls read them."""
-    q, p = state.theta.shape[-1], state.theta_fixed.shape[-1]
-    known: dict[float, torch.Tensor] = {}
+def _evaluation(selection: SimulationSelection, state: State, yhat: torch.Tensor, initial: torch.Tensor) -> Evaluation:
+    y = selection.y
+    score = torch.where(state.diverged, torch.full_like(state.diverged, -torch.inf, dtype=yhat.dtype), fitness(y, yhat))
+    return Evaluation(yhat.new_zeros(yhat.shape[:2] + (0, 0)), yhat, state.theta, state.theta_fixed, score,
+                      sum_abs_error(y, yhat), correlation(yhat, y), initial)
 
-    def trial_fitness(mu, among):
-        if mu not in known:
+
+class LineSearch:
+    """``fitness(mu, among)`` of the step rule: the fitness (T, C) of every candidate moved by
+    ``mu``. The first call simulates that step size and every smaller one of the backtracking
+    ladder in one batch; the later calls read them (``outputs``: mu -> simulated outputs)."""
+
+    def __init__(self, selection: SimulationSelection, state: State, z, delta_gamma, delta_z):
+        self.selection, self.state, self.z, self.delta_gamma, self.delta_z = selection, state, z, delta_gamma, delta_z
+        self.outputs: dict[float, torch.Tensor] = {}
+        self.known: dict[float, torch.Tensor] = {}
+
+    def fitness(self, mu, among):
+        if mu not in self.known:
+            state, z = self.state, self.z
+            q, p = state.theta.shape[-1], state.theta_fixed.shape[-1]
             mus = [m for m in LINE_SEARCH_STEPS if m <= mu] if mu in LINE_SEARCH_STEPS else [mu]
             scale = torch.tensor(mus, dtype=z.dtype, device=z.device).unsqueeze(-1)  # (L, 1)
-            gamma = state.gamma.unsqueeze(-2) + scale * delta_gamma.unsqueeze(-2)  # (T, C, L, Qa)
-            moved = z.unsqueeze(-2) + scale * delta_z.unsqueeze(-2)
-            choice = selection.choice(state).unsqueeze(-2).expand(gamma.shape)
-            out = selection.data.output(gamma, choice, *unpacked(moved, q, p))
-            values = fitness(selection.y.unsqueeze(-2), out)  # (T, C, L)
-            known.update({m: values[..., k] for k, m in enumerate(mus)})
-        return known[mu]
-
-    return trial_fitness
+            gamma = state.gamma.unsqueeze(-2) + scale * self.delta_gamma.unsqueeze(-2)  # (T, C, L, Qa)
+            moved = z.unsqueeze(-2) + scale * self.delta_z.unsqueeze(-2)
+            choice = self.selection.choice(state).unsqueeze(-2).expand(gamma.shape)
+            out = self.selection.data.output(gamma, choice, *unpacked(moved, q, p))
+            values = fitness(self.selection.y.unsqueeze(-2), out)  # (T, C, L)
+            self.known.update({m: values[..., k] for k, m in enumerate(mus)})
+            self.outputs.update({m: out[..., k, :] for k, m in enumerate(mus)})
+        return self.known[mu]
