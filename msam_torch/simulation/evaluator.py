@@ -59,9 +59,8 @@ class SimulationEvaluator:
         jac = jacobians(data, selection.choice(state), state.gamma, z, options.dgamma, free)
         blown = ~usable(current.yhat).all(-1, keepdim=True)  # (T, C, 1): its simulation left the float range
         eps = torch.where(blown, torch.zeros_like(current.yhat), selection.y - current.yhat)
-        change = jac.gamma * options.dgamma  # first-order yhat(Gamma + dgamma e_i) - yhat(Gamma)
-        phi_scaled = structural_sensitivities(change, jac.dm)
-        phi_unscaled = jac.gamma
+        phi_scaled = structural_sensitivities(jac.change, jac.dm)
+        phi_unscaled = structural_sensitivities(jac.change, torch.full_like(jac.dm, options.dgamma))
         phi_gamma = phi_scaled if options.scaling == "dm" else phi_unscaled
         phi = torch.where(blown.unsqueeze(-1), 0.0, torch.cat([phi_gamma, jac.z[..., free]], -1))
         delta = lstsq(phi, eps, options.damping, options.rcond)
