@@ -10,6 +10,7 @@ import torch
 
 from msam_torch.api import adapt, make_trainer
 from msam_torch.config import load_config
+from msam_torch.data import Dataset
 from msam_torch.diagnose.core import DiagnoseOptions
 from msam_torch.diagnose.simulated import diagnose_simulated
 from msam_torch.errors import ConfigError
@@ -86,3 +87,20 @@ def test_diagnose_simulated_uses_in_memory_training_and_validation_tables(tmp_pa
     assert free_run["nrmse"]["adapted"] < 0.2 * free_run["nrmse"]["retuned"]
     samples = len(report.series["x2_dot"]["free_run_held_out"]["t"])
     assert samples == 40
+
+
+def test_a_dataset_a_mapping_and_a_path_give_the_record_of_the_config_file(tmp_path):
+    torricelli_record(tmp_path / "tanks.csv", n=30)
+    frame = pd.read_csv(tmp_path / "tanks.csv")
+    config = load_config(TANKS)
+    spec = ModelSpec.from_config(config.model)
+    model = build_model(spec, spec.equations)
+    outputs = output_states(config, spec, model)
+    load = lambda data=None: load_records(config, spec, model, outputs, tmp_path, data=data)[0]
+    reference = load()
+    signals = {name: torch.tensor(frame[column].to_numpy()) for name, column in (("t", "t"), ("u", "u"), ("x2", "y"))}
+    for data in (Dataset(signals), {k: v.to_numpy() for k, v in frame.items()}, "tanks.csv"):
+        record = load(data)
+        for name in ("t", "external", "outputs", "guess"):
+            torch.testing.assert_close(getattr(record, name), getattr(reference, name), rtol=0, atol=0)
+    assert reference.outputs.shape == (1, 30) and reference.guess.tolist() == [3.0, float(frame["y"][0])]
