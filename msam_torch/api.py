@@ -10,8 +10,8 @@ import torch
 from .candidates import EquationData, equation_choices
 from .config import Config, load_config
 from .data import Table, load_datasets
-from .simulation import adapt_simulation
 from .result import EquationResult, RunResult, format_component, format_equation
+from .simulation import adapt_simulation
 from .spec import Equation, ModelSpec
 from .step import StepOptions
 from .systems import perturb_parameters
