@@ -11,6 +11,7 @@ from typing import Callable
 import torch
 
 from ..config import Config
+from ..data import Dataset
 from ..errors import ConfigError
 from ..result import EquationResult, RunResult, format_component, format_equation
 from ..spec import Equation, ModelSpec
@@ -108,7 +109,9 @@ def adapt_simulation(config: Config, spec: ModelSpec, parameters: dict, base_dir
         fit = trainer.fit(prepared.data, prepared.theta, prepared.theta_fixed, start, choices=model.choices(device))
         results.extend(equation_results(fit, prepared))
         reports.append(report(prepared, fit))
-    source = "data frame" if data is not None else config.data.file or f"system:{config.data.system}"
+    source = config.data.file or f"system:{config.data.system}" if data is None else \
+        str(data) if isinstance(data, (str, Path)) else data.info.get("source", "dataset") if isinstance(data, Dataset) \
+        else "data frame"
     return RunResult(results, config.model_dump(mode="json"),
                      {"source": source, "evaluation": "simulation", "nominal_parameters": parameters,
                       "simulation": reports})
