@@ -24,7 +24,7 @@ from msam_torch.config import load_config
 from msam_torch.data import load_datasets
 from msam_torch.diagnose.catalogue import CATALOGUE, name_effect
 from msam_torch.result import EquationResult, adjusted_columns
-from msam_torch.simulation_mode import free_run_models
+from msam_torch.simulation import free_run_models
 from msam_torch.spec import ModelSpec
 from msam_torch.step import lstsq
 

@@ -112,7 +112,7 @@ class DataConfig(_Section):
 
 class SimulationConfig(_Section):
     """Simulation-based evaluation (paper section 2): candidates are simulated with torchdiffeq and
-    compared with the measured outputs (see :mod:`msam_torch.simulation_mode`)."""
+    compared with the measured outputs (see :mod:`msam_torch.simulation`)."""
 
     output: list[str] = Field([], description="measured states compared with the simulation, e.g. [x2]")
     coupling: Literal["joint", "separate"] = Field(
@@ -126,7 +126,6 @@ class SimulationConfig(_Section):
     initial_guess: dict[str, Number] = Field({}, description="initial values of states the data do not give")
     prefit_steps: int = Field(15, ge=0, description="Levenberg-Marquardt steps fitting theta and initial states first")
     refit_steps: int = Field(0, ge=0, description="Levenberg-Marquardt steps on theta and initial states before every exponent step")
-    relative_step: float = Field(1e-6, gt=0, description="relative finite-difference step for theta and initial states")
     saturation: dict[str, tuple[Optional[Number], Optional[Number]]] = Field(
         {}, description="range [low, high] of a simulated state (null: unbounded), e.g. {x2: [null, 10]}: the state "
                         "stops at a limit while its rate points beyond it (a tank that overflows, a level or sensor "

@@ -9,7 +9,7 @@ from msam_torch.api import adapt
 from msam_torch.candidates import EquationData
 from msam_torch.config import load_config
 from msam_torch.data import load_datasets
-from msam_torch.simulation_mode import free_run_models
+from msam_torch.simulation import free_run_models
 from msam_torch.spec import ModelSpec
 from msam_torch.diagnose import diagnose
 from msam_torch.errors import ConfigError, DataError

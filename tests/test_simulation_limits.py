@@ -10,7 +10,7 @@ from torchdiffeq import odeint
 from msam_torch.candidates import equation_choices
 from msam_torch.config import load_config
 from msam_torch.errors import ConfigError
-from msam_torch.simulation_mode import build_model, prepare
+from msam_torch.simulation import build_model, prepare
 from msam_torch.spec import ModelSpec
 
 from tests.test_simulation_mode import TANKS
