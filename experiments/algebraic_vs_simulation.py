@@ -40,8 +40,8 @@ from msam_torch.candidates import EquationData
 from msam_torch.config import load_config
 from msam_torch.data import load_datasets
 from msam_torch.plan import make_trainer
-from msam_torch.plan import prepare as plan_of
-from msam_torch.simulation import groups, prepare
+from msam_torch.plan import prepare
+from msam_torch.simulation import groups, prepare_group
 from msam_torch.spec import ModelSpec
 
 CONFIGS = ROOT / "configs"
@@ -79,7 +79,7 @@ def algebraic(config, spec, sets) -> tuple[list, list, list]:
         data = EquationData.build(equation, train.signals, config.adaptation.normalize)
         data = data.expand_trials(len(sets))
         theta = torch.stack([spec.theta(equation, p) for p in sets])
-        fit = make_trainer(plan_of(config)).fit(data, theta[:, list(equation.adjustable)], theta[:, list(equation.fixed)])
+        fit = make_trainer(prepare(config)).fit(data, theta[:, list(equation.adjustable)], theta[:, list(equation.fixed)])
         for k in range(len(sets)):
             labels[k].append([equation.adjustments[int(f)].text for f in fit.choices[fit.winner[k]]])
             exponents[k].append(fit.gamma[k].tolist())
@@ -89,10 +89,10 @@ def algebraic(config, spec, sets) -> tuple[list, list, list]:
 
 def simulation(config, spec, sets) -> tuple[list, list, list]:
     """The same with simulation-based evaluation, one fit per group of equations."""
-    plan = plan_of(config)
+    plan = prepare(config)
     labels, exponents, diverged = [[] for _ in sets], [[] for _ in sets], [[] for _ in sets]
     for group in groups(spec, config.adaptation.simulation.coupling):
-        prepared = prepare(plan, group, sets, CONFIGS)
+        prepared = prepare_group(plan, group, sets, CONFIGS)
         model = prepared.data.model
         trainer = make_trainer(plan)
         fit = trainer.fit(prepared.data, prepared.theta, prepared.theta_fixed, choices=model.choices())

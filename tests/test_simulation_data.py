@@ -1,5 +1,5 @@
 """Simulation mode reads its records through the project's one loader: in-memory tables given to
-``adapt`` and ``diagnose_simulated`` are used, every ``data.derivatives`` value works, and a
+``adapt`` and ``diagnose`` are used, every ``data.derivatives`` value works, and a
 trainer factory is honoured."""
 import copy
 
@@ -11,8 +11,7 @@ import torch
 from msam_torch.api import adapt, make_trainer
 from msam_torch.config import load_config
 from msam_torch.data import Dataset
-from msam_torch.diagnose.core import DiagnoseOptions
-from msam_torch.diagnose.simulated import diagnose_simulated
+from msam_torch.diagnose import diagnose
 from msam_torch.errors import ConfigError
 from msam_torch.simulation import build_model, load_records, output_states
 from msam_torch.spec import ModelSpec
@@ -73,7 +72,7 @@ def test_every_derivative_estimator_gives_the_initial_velocity(derivatives):
     assert float(record.guess[0]) == 0.0 and abs(float(record.guess[1]) - 1.1) < 0.02
 
 
-def test_diagnose_simulated_uses_in_memory_training_and_validation_tables(tmp_path):
+def test_diagnose_in_simulation_mode_uses_in_memory_training_and_validation_tables(tmp_path):
     """Two tanks at the true exponents, the records given as a DataFrame and a mapping of arrays
     (the config's file does not exist): the held-out free run is the validation table's."""
     torricelli_record(tmp_path / "train.csv", n=60)
@@ -81,7 +80,7 @@ def test_diagnose_simulated_uses_in_memory_training_and_validation_tables(tmp_pa
     held = {k: v[20:].to_numpy() for k, v in train.items()}
     held["t"] = held["t"] - held["t"][0]
     config = load_config(at_true_exponents(), SHORT + ["adaptation.damping=0.01"])
-    report = diagnose_simulated(config, tmp_path, DiagnoseOptions(), data=train, validation=held)
+    report = diagnose(config, data=train, validation=held, base_dir=tmp_path)
     assert report.data["held_out"] == "validation record" and report.data["train"] == "data frame"
     free_run = report.measures["free_run"]["held_out"]
     assert free_run["nrmse"]["adapted"] < 0.2 * free_run["nrmse"]["retuned"]
@@ -99,7 +98,7 @@ def test_a_dataset_a_mapping_and_a_path_give_the_record_of_the_config_file(tmp_p
     load = lambda data=None: load_records(config, spec, model, outputs, tmp_path, data=data)[0]
     reference = load()
     signals = {name: torch.tensor(frame[column].to_numpy()) for name, column in (("t", "t"), ("u", "u"), ("x2", "y"))}
-    for data in (Dataset(signals), {k: v.to_numpy() for k, v in frame.items()}, "tanks.csv"):
+    for data in (Dataset(signals), {k: v.to_numpy() for k, v in frame.items()}, tmp_path / "tanks.csv"):
         record = load(data)
         for name in ("t", "external", "outputs", "guess"):
             torch.testing.assert_close(getattr(record, name), getattr(reference, name), rtol=0, atol=0)

@@ -12,7 +12,8 @@ from torchdiffeq import odeint
 from msam_torch.api import adapt, nominal_parameters
 from msam_torch.config import load_config
 from msam_torch.errors import ConfigError
-from msam_torch.simulation import Parameters, build_model, load_records, output_states, prepare, simulate
+from msam_torch.plan import prepare
+from msam_torch.simulation import Parameters, build_model, load_records, output_states, prepare_group, simulate
 from msam_torch.spec import ModelSpec
 
 TANKS = {
@@ -83,7 +84,7 @@ def test_trials_batch_parameter_sets(tmp_path):
     config = load_config(TANKS, ["adaptation.simulation.prefit_steps=0", "adaptation.theta=fixed"])
     spec = ModelSpec.from_config(config.model)
     sets = [nominal_parameters(config, spec), {k: 2 * v for k, v in spec.parameters.items()}]
-    prepared = prepare(config, spec, spec.equations, sets, tmp_path)
+    prepared = prepare_group(prepare(config), spec.equations, sets, tmp_path)
     assert prepared.theta.shape == (2, 3) and prepared.theta_fixed.shape == (2, 1)
     torch.testing.assert_close(prepared.theta[1], 2 * prepared.theta[0])
 

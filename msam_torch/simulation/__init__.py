@@ -3,7 +3,7 @@ records from the project's loader (:mod:`.record`), exact forward-mode sensitivi
 (:mod:`.sensitivities`), the simulation evaluator of Algorithm 1 (:mod:`.evaluator`), adaptation
 from a config (:mod:`.adapt`), free runs (:mod:`.free_run`) and per-equation models for the
 diagnosis (:mod:`.equations`)."""
-from .adapt import Prepared, adapt_simulation, prepare
+from .adapt import Prepared, adapt_simulation, prepare_group
 from .equations import EquationModel, simulate_equations
 from .evaluator import SimulationEvaluator
 from .free_run import FreeRun, free_run_models, free_runs
@@ -15,4 +15,4 @@ from .solver import simulate
 
 __all__ = ["EquationModel", "FreeRun", "Parameters", "Prepared", "Record", "SimulationData", "SimulationEvaluator",
            "SystemModel", "adapt_simulation", "build_model", "free_run_models", "free_runs", "groups", "jacobians",
-           "load_records", "output_states", "prepare", "simulate", "simulate_equations", "state_limits"]
+           "load_records", "output_states", "prepare_group", "simulate", "simulate_equations", "state_limits"]

@@ -10,12 +10,11 @@ from typing import Callable
 
 import torch
 
-from ..config import Config
 from ..plan import Plan
 from ..data import Dataset
 from ..errors import ConfigError
 from ..result import EquationResult, RunResult, format_component, format_equation
-from ..spec import Equation, ModelSpec
+from ..spec import Equation
 from ..trainer import Algebraic, Trainer
 from .evaluator import SimulationEvaluator
 from .free_run import free_run, rmse
@@ -47,7 +46,7 @@ class Prepared:
     validation: Record | None
 
 
-def prepare(plan: Plan, group: tuple[Equation, ...], parameters: dict | list[dict], base_dir: Path, data=None,
+def prepare_group(plan: Plan, group: tuple[Equation, ...], parameters: dict | list[dict], base_dir: Path, data=None,
             validation=None) -> Prepared:
     """Records (from the config, or ``data`` and ``validation``), the starting model's fit of theta
     and initial states, and the function scale; a list of parameter sets gives one trial each."""
@@ -101,7 +100,7 @@ def adapt_simulation(plan: Plan, parameters: dict, base_dir: Path, trainer_facto
     config, spec, dtype, device = plan.config, plan.spec, plan.dtype, plan.device
     results, reports = [], []
     for group in groups(spec, config.adaptation.simulation.coupling):
-        prepared = prepare(plan, group, parameters, base_dir, data, validation)
+        prepared = prepare_group(plan, group, parameters, base_dir, data, validation)
         model = prepared.data.model
         trainer = simulation_trainer(plan, trainer_factory)
         if on_trainer is not None:
