@@ -117,8 +117,11 @@ def run(case: str) -> None:
     for eq in result.equations:
         print(f"  start:   {eq.start_equation}")
         print(f"  adapted: {eq.equation}")
-        print(f"  winner {eq.ranking[0]['adjustments']}, runner-up {eq.ranking[1]['adjustments']} "
-              f"(fitness {eq.ranking[0]['fitness']:.4g} vs {eq.ranking[1]['fitness']:.4g})")
+        if len(eq.ranking) > 1:
+            print(f"  winner {eq.ranking[0]['adjustments']}, runner-up {eq.ranking[1]['adjustments']} "
+                  f"(fitness {eq.ranking[0]['fitness']:.4g} vs {eq.ranking[1]['fitness']:.4g})")
+        else:  # a single candidate (every component restricted to one adjustment): nothing to rank
+            print(f"  single candidate {eq.ranking[0]['adjustments']} (fitness {eq.ranking[0]['fitness']:.4g})")
         equation = spec.equations[[e.target for e in spec.equations].index(eq.target)]
         named = [name for _, name, _ in named_laws(equation, eq, spec.theta(equation))]
         other = rival(equation, eq, spec.theta(equation))
