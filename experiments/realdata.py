@@ -72,7 +72,7 @@ def rival(equation, eq, starting: torch.Tensor) -> tuple[int, dict] | None:
     base = lambda names: {next(e.name for e in CATALOGUE if name.endswith(e.name)) for name in names}
     laws = lambda entry: base(name for _, name, _ in named_laws(equation, entry, starting))
     winner = laws(eq)
-    for rank, row in enumerate(eq.ranking):
+    for rank, row in enumerate(eq.ranking[1:], start=1):  # rank 0 is the winner itself
         adjustments, exponents = [None] * len(equation.components), [None] * len(equation.components)
         for k, i in enumerate(equation.adjustable):  # ranking rows list the adjustable components only
             adjustments[i], exponents[i] = row["adjustments"][k], row["exponents"][k]
