@@ -231,7 +231,7 @@ def protocol_free_run(case: Case, spec: ModelSpec, models: list[EquationModel], 
     """RMSE of the free run (rk4 at the sampling period, inputs linearly interpolated) whose
     initial state fits the first ``window`` outputs (least squares from a local quadratic fit)."""
     t = torch.arange(len(rec.y), dtype=torch.float64) * rec.ts
-    inputs = {spec.inputs[0]: torch.as_tensor(rec.u)}
+    inputs = {spec.inputs[0]: torch.tensor(rec.u)}
     head = np.polynomial.polynomial.polyfit(t[:case.window].numpy(), rec.y[:case.window], 2)
     guess = np.array([head[0] if s == output else head[1] for s in spec.states])
 
