@@ -66,6 +66,8 @@ class Case:
     literature: list = field(default_factory=list)
 
 
+TANKS_PAPER = ("Schoukens, Mattsson, Wigren, Noel, 'Cascaded tanks benchmark combining soft and hard "
+               "nonlinearities', Workshop on Nonlinear System Identification Benchmarks, 2016")
 CASES = {
     "silverbox": Case(
         "silverbox", "train_multisine", "test_arrow", "V1", "V2",
@@ -84,10 +86,8 @@ CASES = {
     "cascaded_tanks": Case(
         "cascaded_tanks", "estimation", "validation", "u_V", "y_V",
         {"test record": None}, 5, "zoh", ("V", 1.0), (),
-        [("best linear model: 0.75 V", "Schoukens, Mattsson, Wigren, Noel, 'Cascaded tanks benchmark combining "
-          "soft and hard nonlinearities', Workshop on Nonlinear System Identification Benchmarks, 2016"),
-         ("best black box: 0.34 V", "same source"),
-         ("grey box with explicit overflow: 0.18 V", "same source")]),
+        [(text, TANKS_PAPER) for text in ("best linear model: 0.75 V", "best black box: 0.34 V",
+                                          "grey box with explicit overflow: 0.18 V")]),
 }
 
 
