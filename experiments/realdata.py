@@ -72,7 +72,7 @@ def rival(equation, eq, starting: torch.Tensor) -> tuple[int, dict] | None:
     base = lambda names: {next(e.name for e in CATALOGUE if name.endswith(e.name)) for name in names}
     laws = lambda entry: base(name for _, name, _ in named_laws(equation, entry, starting))
     winner = laws(eq)
-    for rank, row in enumerate(eq.ranking):
+    for rank, row in enumerate(eq.ranking[1:], start=1):  # rank 0 is the winner itself
         adjustments, exponents = [None] * len(equation.components), [None] * len(equation.components)
         for k, i in enumerate(equation.adjustable):  # ranking rows list the adjustable components only
             adjustments[i], exponents[i] = row["adjustments"][k], row["exponents"][k]
@@ -117,8 +117,11 @@ def run(case: str) -> None:
     for eq in result.equations:
         print(f"  start:   {eq.start_equation}")
         print(f"  adapted: {eq.equation}")
-        print(f"  winner {eq.ranking[0]['adjustments']}, runner-up {eq.ranking[1]['adjustments']} "
-              f"(fitness {eq.ranking[0]['fitness']:.4g} vs {eq.ranking[1]['fitness']:.4g})")
+        if len(eq.ranking) > 1:
+            print(f"  winner {eq.ranking[0]['adjustments']}, runner-up {eq.ranking[1]['adjustments']} "
+                  f"(fitness {eq.ranking[0]['fitness']:.4g} vs {eq.ranking[1]['fitness']:.4g})")
+        else:  # a single candidate (every component restricted to one adjustment): nothing to rank
+            print(f"  single candidate {eq.ranking[0]['adjustments']} (fitness {eq.ranking[0]['fitness']:.4g})")
         equation = spec.equations[[e.target for e in spec.equations].index(eq.target)]
         named = [name for _, name, _ in named_laws(equation, eq, spec.theta(equation))]
         other = rival(equation, eq, spec.theta(equation))
