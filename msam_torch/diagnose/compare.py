@@ -3,11 +3,14 @@ trial's retuned and adapted pair) one-step and in free run (:mod:`msam_torch.sim
 training and held-out data, with the part of the gap each closes (:mod:`.measures`)."""
 from __future__ import annotations
 
+import math
+
 import torch
 
 from torchdiffeq._impl.odeint import SOLVERS
 from torchdiffeq._impl.solvers import FixedGridODESolver
 
+from ..errors import MSAMError
 from ..simulate import EquationModel, simulate
 from ..spec import Equation, ModelSpec
 from . import measures
@@ -16,7 +19,8 @@ from .confidence import best_effect
 from .hypotheses import Fitted
 from .options import DiagnoseOptions
 
-HALVINGS = 4  # a fixed step is halved at most this often
+PER_PERIOD = 0.1  # a fixed step starts at most at this share of the band's period
+HALVINGS = 3  # a fixed step is halved at most this often (then the runs are marked not converged)
 DIVERGED = 10.0  # a free run this many standard deviations off the measurement (NRMSE) has diverged
 AGREEMENT = 1e-2  # runs at a step and twice it agree within this share of a state's magnitude
 
@@ -39,9 +43,17 @@ def models(extended: Equation, equation: Equation, nominal: torch.Tensor, choice
     return EquationModel(extended, stack(0), stack(1), stack(2), stack(3), scale)
 
 
-def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, series: dict, options: DiagnoseOptions) -> dict:
+def check_solver(method: str) -> None:
+    """A torchdiffeq method name, else an error naming the option."""
+    if method not in SOLVERS:
+        raise MSAMError(f"solver: {method!r} is not a torchdiffeq method (one of {', '.join(sorted(SOLVERS))})")
+
+
+def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, series: dict, options: DiagnoseOptions,
+            band: float = math.inf) -> dict:
     """One-step and free-run measures of the three models on training and held-out data; the
-    arrays the plots draw are added to ``series`` (per target). A free run that diverges (not
+    arrays the plots draw are added to ``series`` (per target); ``band``: the band edge of the
+    measured states (cycles per time unit), which bounds a fixed solver step. A free run that diverges (not
     finite, or NRMSE above :data:`DIVERGED`) is listed in ``diverged`` and has no NRMSE.
 
     Held-out data are simulated with every bootstrap trial's models (for the interval of the gap
@@ -59,8 +71,7 @@ def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, serie
     if not options.free_run:
         return out
     batches = {label: models if label == list(sets)[-1] else [_first(m, 3) for m in models] for label in sets}
-    trajectories, out["solver"] = _simulate_sets(spec, sets, batches, options)
-    out["solver"] = {"method": options.solver, "step": out["solver"], "rtol": options.rtol, "atol": options.atol}
+    trajectories, solvers = _simulate_sets(spec, sets, batches, options, band)
     for label, dataset in sets.items():
         s, trajectory = dataset.signals, trajectories[label]
         measured = [x for x in spec.states if x in dataset.info.get("measured", spec.states)] or list(spec.states)
@@ -70,7 +81,7 @@ def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, serie
         off = ~torch.isfinite(nrmse_all[:3]) | (nrmse_all[:3] > DIVERGED)
         entry = {"states": per_state, "measured_states": measured,
                  "nrmse": {m: None if o else v for m, v, o in zip(measures.MODELS, nrmse_all[:3].tolist(), off.tolist())},
-                 "diverged": [m for m, o in zip(measures.MODELS, off.tolist()) if o]}
+                 "diverged": [m for m, o in zip(measures.MODELS, off.tolist()) if o], "solver": solvers[label]}
         entry["gap_closed"] = {k: float(v[0]) for k, v in measures.closure(nrmse_all[0:1], nrmse_all[1:2], nrmse_all[2:3]).items()}
         if nrmse_all.shape[0] > 3:
             boot = measures.closure(nrmse_all[0].expand(nrmse_all[3::2].shape), nrmse_all[3::2], nrmse_all[4::2])
@@ -82,11 +93,13 @@ def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, serie
     return out
 
 
-def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: DiagnoseOptions) -> dict:
+def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: DiagnoseOptions, band: float) -> tuple:
     """Free runs from each set's first (estimated) state under its inputs; sets on the same time
     grid are integrated in one batch. A fixed-step solver without a given step starts at
-    :func:`~msam_torch.simulate.simulate`'s default and halves it until the three point models'
-    runs at the step and at twice it agree (:func:`converged`); an adaptive one keeps its
+    :func:`~msam_torch.simulate.simulate`'s default or a tenth of the band's period, whichever is
+    shorter, and halves it until the three point models'
+    runs at the step and at twice it agree (:func:`converged`), at most :data:`HALVINGS` times
+    (each set's ``solver`` entry says whether they agreed); an adaptive one keeps its
     tolerances, ``atol`` relative to each state's measured magnitude."""
     grids = {label: d.signals["t"] for label, d in sets.items()}
     same = len(sets) == 2 and grids["train"].shape == grids["held_out"].shape and torch.allclose(
@@ -108,19 +121,22 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
             spec, models, t, {u: v if keep is None else v[keep] for u, v in inputs.items()},
             {x: v if keep is None else v[keep] for x, v in initial.items()}, method=options.solver, step=step,
             rtol=options.rtol, atol=atol, scale=scale)
-        step = options.solver_step
+        step, agree = options.solver_step, True
         trajectory = run(batch, step)
         if fixed and step is None:  # the run at twice the step agrees, or the step is halved
-            step = float(t[1] - t[0]) * max(1, t.shape[0] // 500)  # simulate's default
+            step = min(float(t[1] - t[0]) * max(1, t.shape[0] // 500), PER_PERIOD / band)  # simulate's default
             points = torch.cat([torch.arange(o, o + 3) for o in torch.tensor([0] + sizes[:-1]).cumsum(0).tolist()])
             coarse = run([_pick(m, points) for m in batch], 2 * step, points)
-            for _ in range(HALVINGS):
-                if converged(coarse, {x: v[points] for x, v in trajectory.items()}, scale):
+            for halving in range(HALVINGS + 1):
+                agree = converged(coarse, {x: v[points] for x, v in trajectory.items()}, scale)
+                if agree or halving == HALVINGS:
                     break
                 coarse = {x: v[points] for x, v in trajectory.items()}
                 step /= 2
                 trajectory = run(batch, step)
-        steps["+".join(group)] = step
+        for label in group:
+            steps[label] = {"method": options.solver, "step": step, "converged": agree,
+                            **({} if fixed else {"rtol": options.rtol, "atol": options.atol})}
         offsets = [0] + torch.tensor(sizes).cumsum(0).tolist()
         for k, label in enumerate(group):
             result[label] = {x: v[offsets[k]:offsets[k + 1]] for x, v in trajectory.items()}

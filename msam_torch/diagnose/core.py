@@ -19,7 +19,7 @@ from ..config import Config, load_config
 from ..data import DataArgument, resolve_datasets
 from ..plan import prepare
 from ..trainer import Algebraic
-from .compare import compare
+from .compare import check_solver, compare
 from .equation import diagnose_equation
 from .estimation import choose
 from .options import DiagnoseOptions
@@ -40,6 +40,7 @@ def diagnose(config: Config | dict | str | Path, data: DataArgument = None, vali
     any, alternate time blocks of the training record are held out). Paths in the config are
     relative to ``base_dir`` (default: the config file's folder).
     """
+    check_solver(options.solver)
     if base_dir is None:
         base_dir = Path(config).parent if isinstance(config, (str, Path)) else Path(".")
     if not isinstance(config, Config):
@@ -60,7 +61,8 @@ def diagnose(config: Config | dict | str | Path, data: DataArgument = None, vali
                  for equation in spec.equations]
     gaps = tuple(e.gap for e in equations)
     series = {e.gap.target: e.series for e in equations}
-    gap_measures = compare(spec, [e.model for e in equations], train, held_out, series, options)
+    gap_measures = compare(spec, [e.model for e in equations], train, held_out, series, options,
+                           estimation.info["band_edge"])
     kind, verdict, reasons = overall(gaps, any(g.significant for g in gaps), name_targets=len(gaps) > 1,
                                      free_run=gap_measures.get("free_run"))
     data_info = {"train": dict(train.info),

@@ -104,8 +104,7 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
         structure_left=structure, components=_components(equation, hypotheses, rmse),
         ranking=_ranking(equation, hypotheses, rmse, names, snapped, original, text), where=where["summary"],
         estimator={"test_function": "bump (1-s^2)^4", "half_width": weak.tests.half_width * weak.tests.dt,
-                   "half_width_samples": weak.tests.half_width, "rows": weak.rows, **estimation.info,
-                   "derivatives": train.info.get("derivatives")},
+                   "half_width_samples": weak.tests.half_width, "rows": weak.rows, **estimation.info},
         checks={**checks, "reasons": reasons},
     )
     model = models(extended, equation, nominal, choices, original, boot, winner, is_effect, weak.scale)

@@ -8,7 +8,7 @@ measured states (what the inputs excited in the system), of the frequency below 
 white-noise floor lies; the bump test function passes ``f_b`` at half amplitude for the half-width
 ``h = 0.6 / f_b`` (time units of the system, not a share of the record). Records sampled far
 faster than the band are low-pass filtered and decimated (``scipy.signal.decimate``) to about
-``quadrature_samples`` samples, never below 7 samples per band period."""
+``quadrature_samples`` samples, never below 7 samples per band period nor 16 per half-width."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -29,6 +29,7 @@ HALF_AMPLITUDE = 0.6  # f h at which the bump (1 - s^2)^4 of half-width h passes
 SAMPLES_PER_PERIOD = 7  # decimation keeps the band edge below 1/7 of the sampling rate
 DERIVATIVE_MARGIN = 2.0  # a derivative's smoother passes twice the band edge
 SHORTEST = 4  # samples in a test function's half-width, at least
+QUADRATURE = 16  # decimation keeps at least this many samples in a half-width
 WIDEST = 0.1  # of the record: a test function's half-width, at most
 
 
@@ -71,11 +72,11 @@ def _signals(measured: dict, every: int, band: float, data: DataConfig, spec: Mo
     kept = {k: (decimate(v, every, ftype="fir", zero_phase=True) if every > 1 else v)[:t.size]
             for k, v in measured.items() if k != "t"}
     if exact:  # every signal given (noise-free simulation): nothing to estimate
-        return {"t": torch.tensor(t, dtype=dtype), **{k: torch.tensor(np.ascontiguousarray(v), dtype=dtype)
-                                                     for k, v in kept.items()}}
+        return {"t": torch.tensor(t, dtype=dtype), "derivatives": "given",
+                **{k: torch.tensor(np.ascontiguousarray(v), dtype=dtype) for k, v in kept.items()}}
     dataset = build_dataset(t, kept, data, spec, {}, dtype, source, InBand(estimator, min(band * every, 0.45)),
                             keep_measured=True)
-    return dataset.signals
+    return {**dataset.signals, "derivatives": dataset.info["derivatives"]}
 
 
 def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset | None,
@@ -92,17 +93,20 @@ def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset 
     half_width = half_width or HALF_AMPLITUDE / (band / dt)
     record = float(t[-1] - t[0])
     half_width = min(max(half_width, SHORTEST * dt), WIDEST * record)
-    every = max(1, min(t.size // samples, int(1 / (SAMPLES_PER_PERIOD * band)), int(half_width / (SHORTEST * dt))))
+    every = max(1, min(t.size // samples, int(1 / (SAMPLES_PER_PERIOD * band)), int(half_width / (QUADRATURE * dt))))
     exact = not train.measured
     device, dtype = train.t.device, train.t.dtype
-    build = lambda d, source: {k: v.to(device) for k, v in _signals(
-        _measured(d), every, DERIVATIVE_MARGIN * band, data, spec, dtype, estimator, exact, source).items()}
+    build = lambda d, source: _signals(_measured(d), every, DERIVATIVE_MARGIN * band, data, spec, dtype, estimator,
+                                       exact, source)
     try:
         signals = build(train, "training data")
         held = None if held_out is None else build(held_out, "held-out data")
     except DataError as error:
         raise DataError(f"after decimation by {every}: {error}") from None
+    derivatives = signals.pop("derivatives")
+    signals, held = ({k: v.to(device) for k, v in d.items() if k != "derivatives"} if d is not None else None
+                     for d in (signals, held))
     info = {"band_edge": band / dt, "band_edges": {k: v / dt for k, v in edges.items()}, "half_width_rule": rule,
             "decimation": every, "derivative_cutoff": min(DERIVATIVE_MARGIN * band, 0.45) / dt,
-            "weak_form_signals": "measured (unsmoothed)" if not exact else "given (exact)"}
+            "weak_form_signals": "measured (unsmoothed)" if not exact else "given (exact)", "derivatives": derivatives}
     return Estimation(signals, held, half_width, every, info)

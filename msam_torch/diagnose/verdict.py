@@ -53,8 +53,8 @@ def equation_verdict(significant: bool, named: bool, win_frequency: float, struc
 
 def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
     """Why the free runs do not support a verdict of ``kind``: the re-fitted start worse than the
-    nominal model (held-out data, else training), or a diverged run the verdict rests on (the
-    re-fitted start always; the adapted model for an explained gap)."""
+    nominal model (held-out data, else training), a diverged run the verdict rests on (the
+    re-fitted start always; the adapted model for an explained gap), or runs that did not converge."""
     if not free_run:
         return []
     label = "held_out" if "held_out" in free_run else "train"
@@ -65,6 +65,9 @@ def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
     for model in rests_on:
         if model in diverged:
             reasons.append(f"the {_MODEL[model]} model's free run on {label} data diverged")
+    if not entry["solver"]["converged"]:
+        reasons.append(f"the free runs did not converge when the {entry['solver']['method']} step was halved to "
+                       f"{entry['solver']['step']:.3g}")
     if reasons:
         return reasons + [TRY["diverged"]]
     if "start" not in diverged and nrmse["retuned"] > (1 + NO_WORSE) * nrmse["start"]:
