@@ -28,10 +28,10 @@ CASE = "msd_coulomb"
 NOISE = 0.01
 
 
-def records(length: float, faster: int) -> tuple:
-    """Training and held-out datasets of :data:`CASE`, ``length`` times the bundled record's
-    duration, sampled ``faster`` times faster."""
-    w = WITHHELD[CASE]
+def records(length: float, faster: int, case: str = CASE) -> tuple:
+    """Training and held-out datasets of a withheld-effect ``case``, ``length`` times the bundled
+    record's duration, sampled ``faster`` times faster."""
+    w = WITHHELD[case]
     spec = ModelSpec.from_config(load_config({"model": w.model}).model)
     rng = np.random.default_rng(0)
     out = []

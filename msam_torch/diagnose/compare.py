@@ -19,8 +19,8 @@ from .confidence import best_effect
 from .hypotheses import Fitted
 from .options import DiagnoseOptions
 
-PER_PERIOD = 0.1  # a fixed step starts at most at this share of the band's period
-HALVINGS = 3  # a fixed step is halved at most this often (then the runs are marked not converged)
+PER_PERIOD = 0.04  # a fixed step starts at most at this share of the band's period
+HALVINGS = 2  # a fixed step is halved at most this often (then the runs are marked not converged)
 DIVERGED = 10.0  # a free run this many standard deviations off the measurement (NRMSE) has diverged
 AGREEMENT = 1e-2  # runs at a step and twice it agree within this share of a state's magnitude
 
@@ -96,7 +96,7 @@ def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, serie
 def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: DiagnoseOptions, band: float) -> tuple:
     """Free runs from each set's first (estimated) state under its inputs; sets on the same time
     grid are integrated in one batch. A fixed-step solver without a given step starts at
-    :func:`~msam_torch.simulate.simulate`'s default or a tenth of the band's period, whichever is
+    :func:`~msam_torch.simulate.simulate`'s default or 1/25 of the band's period, whichever is
     shorter, and halves it until the three point models'
     runs at the step and at twice it agree (:func:`converged`), at most :data:`HALVINGS` times
     (each set's ``solver`` entry says whether they agreed); an adaptive one keeps its

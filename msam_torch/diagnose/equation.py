@@ -82,7 +82,8 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     # verdict (with the residual structure the effect leaves), and where the starting model fails
     structure = structure_left(equation, weak, choices, original, best)
     checks = residual_checks(equation, weak, choices, original, [u for u in spec.inputs if u in weak.val_signals],
-                             options.check_level, options.max_residual_structure, options.absolute)
+                             options.check_level, options.max_residual_structure, options.absolute,
+                             estimation.reach)
     kind, reasons = equation_verdict(is_significant, outcome != catalogue.NOT_CATALOGUED, sure["win_frequency"],
                                      structure, checks, options)
     winner = best if is_significant else 0

@@ -59,6 +59,13 @@ class Estimation:
     decimation: int
     info: dict
 
+    @property
+    def reach(self) -> int:
+        """Samples over which a derivative estimate spreads one sample's noise (its widest window)."""
+        derivatives = self.info["derivatives"]
+        windows = [d.get("window") or 0 for d in derivatives.values()] if isinstance(derivatives, dict) else []
+        return max(windows, default=0)
+
 
 def _measured(dataset: Dataset) -> dict[str, np.ndarray]:
     given = {"t": dataset.t, **(dataset.measured or dataset.signals)}

@@ -57,9 +57,10 @@ def structure_left(equation: Equation, weak: WeakForm, choices: torch.Tensor, or
 
 
 def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, original: Fitted, inputs: list[str],
-                    level: float, largest_structure: float, negligible: float) -> dict:
-    """Whether the re-fitted start's held-out residual looks like noise: on rows of non-overlapping
-    test functions (independent under white measurement noise), the Ljung-Box p-value of its
+                    level: float, largest_structure: float, negligible: float, reach: int = 0) -> dict:
+    """Whether the re-fitted start's held-out residual looks like noise: on rows of test functions
+    apart by their length plus ``reach`` samples (the window of a derivative estimate; then the rows
+    are independent under white measurement noise), the Ljung-Box p-value of its
     autocorrelation and the Bonferroni p-value of its largest cross-correlation with the inputs'
     window averages (lags up to :data:`LAGS`), each at least ``level``, and the share of its mean
     square a nearest-neighbour regression predicts at most ``largest_structure``. A residual
@@ -67,7 +68,7 @@ def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, o
     fewer than :data:`FEWEST_ROWS` independent rows. ``failed`` names the checks missed."""
     residual = (weak.val_data.y[0] - predict_rows(weak.val_data, choices, original)[0, 0])
     rows = torch.nonzero(weak.val_rows).squeeze(-1)
-    apart = math.ceil(weak.val_tests.kernels.shape[-1] / weak.val_tests.stride)
+    apart = math.ceil((weak.val_tests.kernels.shape[-1] + reach) / weak.val_tests.stride)
     rows = rows[::apart]
     r = residual[rows].double().cpu()
     out = {"independent_rows": int(rows.numel()), "ljung_box_p": None, "input_correlation_p": None,
