@@ -4,7 +4,7 @@ a 2,000-sample record, on records 10x (and ``--longer``) longer at the same samp
 on one sampled 10x faster over the same time; each run's wall time, its ratio to the 2,000-sample
 run's, the verdict, the exponent and the test-function half-width chosen.
 
-    PYTHONPATH=. python experiments/bench_diagnose.py [--threads 2] [--longer 10 50] [--repeats 3]
+    PYTHONPATH=. python experiments/bench_diagnose.py [--threads 1] [--longer 10 50] [--repeats 3]
 
 The time is the diagnosis itself (``GapReport.seconds``: data loading excluded), the median of
 ``--repeats`` runs.
@@ -58,7 +58,7 @@ def run(length: float, faster: int, repeats: int) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--longer", type=float, nargs="*", default=[10.0])
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
