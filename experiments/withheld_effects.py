@@ -20,6 +20,7 @@ Run (about an hour on 2 busy cores; --quick: a few minutes):
 from __future__ import annotations
 
 import argparse
+import math
 import statistics
 import sys
 import time
@@ -135,7 +136,7 @@ def run_trial(args) -> dict:
     report = diagnose(config, data=train, validation=held_out)
     seconds = time.perf_counter() - started
     gap = report.equations[0]
-    free = report.measures["free_run"]["held_out"]["nrmse"]
+    free = {k: math.inf if v is None else v for k, v in report.measures["free_run"]["held_out"]["nrmse"].items()}  # None: diverged
     row = {"case": case, "noise": noise, "error": error, "seed": seed, "verdict": report.verdict,
            "success": success(case, report.verdict), "seconds": seconds, "free_run": free,
            "exponent": gap.exponent, "win": gap.confidence["win_frequency"]}

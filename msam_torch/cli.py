@@ -168,12 +168,51 @@ def _diagnose(args) -> int:
         import torch
 
         torch.set_num_threads(args.threads)
-    report = diagnose(args.config, data=args.data, validation=args.validate, overrides=args.overrides)
+    report = diagnose(args.config, data=args.data, validation=args.validate, overrides=args.overrides,
+                      options=diagnose_options(args))
     out = Path(args.out)
-    path = report.save(out)
+    path = report.save(out, plots=not args.no_plots)
     print(report)
     print(f"wrote {path} and {out / 'report.md'}")
     return 0
+
+
+def _positive(kind):
+    """An argparse type: a finite positive ``kind`` (int or float), else a one-line usage error."""
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            value = 0
+        if not 0 < value < float("inf"):
+            raise argparse.ArgumentTypeError(f"{text!r} is not a positive {'whole ' if kind is int else ''}number")
+        return value
+    return parse
+
+
+DIAGNOSE_OPTIONS = (  # (flag, DiagnoseOptions field, argparse keywords); defaults are DiagnoseOptions'
+    ("--half-width", "half_width", {"type": _positive(float), "help": "test-function half-width in the data's time "
+                                    "units (default: chosen from the band of the measured states)"}),
+    ("--bootstrap", "bootstrap", {"type": int, "help": "bootstrap trials (0: none; default 16)"}),
+    ("--seed", "seed", {"type": int, "help": "seed of the bootstrap trials (default 0)"}),
+    ("--solver", "solver", {"help": "torchdiffeq method of the free runs: rk4, midpoint, euler (fixed step) or "
+                            "dopri5, bosh3, ... (adaptive); default rk4"}),
+    ("--solver-step", "solver_step", {"type": _positive(float), "help": "fixed-step solvers: step in time units "
+                                      "(default: halved from 1/500 of the record until runs at two steps agree)"}),
+    ("--rtol", "rtol", {"type": _positive(float), "help": "adaptive solvers: relative tolerance (default 1e-6)"}),
+    ("--atol", "atol", {"type": _positive(float), "help": "adaptive solvers: absolute tolerance relative to each "
+                        "state's measured magnitude (default 1e-8)"}),
+    ("--quadrature-samples", "quadrature_samples", {"type": _positive(int), "help": "records are low-pass filtered and "
+                                                    "decimated to about this many samples (default 1000)"}),
+)
+
+
+def diagnose_options(args):
+    """The :class:`~msam_torch.diagnose.DiagnoseOptions` of the ``diagnose`` command line."""
+    from .diagnose import DiagnoseOptions
+
+    given = {field: getattr(args, field) for _, field, _ in DIAGNOSE_OPTIONS if getattr(args, field) is not None}
+    return DiagnoseOptions(**given, free_run=not args.no_free_run)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -234,7 +273,11 @@ def _parse(argv) -> argparse.Namespace:
     diag.add_argument("--data", help="measured CSV/Parquet file (default: the config's data)")
     diag.add_argument("--validate", help="held-out CSV/Parquet file, ideally from another excitation")
     diag.add_argument("--out", help="output folder (default runs/<config name>_diagnosis)")
-    diag.add_argument("--threads", type=_positive_int, help="torch CPU threads (1 is fastest on a busy machine)")
+    diag.add_argument("--threads", type=_positive(int), help="torch CPU threads (1 is fastest on a busy machine)")
+    for flag, field, keywords in DIAGNOSE_OPTIONS:
+        diag.add_argument(flag, dest=field, **keywords)
+    diag.add_argument("--no-free-run", action="store_true", help="do not simulate the models (no free-run measures)")
+    diag.add_argument("--no-plots", action="store_true", help="write gap_report.json and report.md without PNG plots")
     diag.set_defaults(handler=_diagnose, out_default="{stem}_diagnosis")
     args, extra = parser.parse_known_args(argv)  # overrides may follow options
     unknown = [e for e in extra if e.startswith("-") or "=" not in e]
@@ -244,16 +287,6 @@ def _parse(argv) -> argparse.Namespace:
         args.overrides = list(getattr(args, "overrides", [])) + extra
     args.out = str(args.out or Path("runs") / args.out_default.format(stem=Path(args.config).stem))
     return args
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a positive whole number")
-    return value
 
 
 def _seconds(text: str) -> float:

@@ -36,6 +36,7 @@ class Dataset:
 
     signals: dict[str, torch.Tensor]
     info: dict = field(default_factory=dict)
+    measured: dict[str, torch.Tensor] = field(default_factory=dict)  # as recorded, unsmoothed (empty: ``signals``)
 
     @property
     def t(self) -> torch.Tensor:
@@ -286,16 +287,18 @@ def check_time(frame: pd.DataFrame, t: np.ndarray, measured: dict, source: str, 
 
 
 def build_dataset(t: np.ndarray, measured: dict[str, np.ndarray], config: DataConfig, spec: ModelSpec,
-                  info: dict, dtype, source: str = "data", estimator: DerivativeEstimator | None = None) -> Dataset:
+                  info: dict, dtype, source: str = "data", estimator: DerivativeEstimator | None = None,
+                  keep_measured: bool = False) -> Dataset:
     """Estimate every signal ``spec`` reads from the measured ones (``estimator``: default
-    :func:`derivative_estimator` of ``config``), then check they vary where the method needs
-    variation (targets for the correlation of Eq. 19, adjustment functions)."""
+    :func:`derivative_estimator` of ``config``; measured states smoothed by it unless
+    ``keep_measured``), then check they vary where the method needs variation (targets for the
+    correlation of Eq. 19, adjustment functions)."""
     estimator = derivative_estimator(config, True) if estimator is None else estimator
     exact = isinstance(estimator, Exact)
     signals = {"t": t}
     estimates = {}
     for name in sorted(spec.signals - {"t"}):
-        if name in measured and (exact or name in spec.inputs):
+        if name in measured and (exact or keep_measured or name in spec.inputs):
             signals[name] = measured[name]
             continue
         base, order = split_derivative(name)
@@ -319,7 +322,7 @@ def build_dataset(t: np.ndarray, measured: dict[str, np.ndarray], config: DataCo
             "noise_level": {k: noise_level(v) for k, v in measured.items()}}
     tensors = {k: torch.tensor(np.asarray(v, dtype=float), dtype=dtype) for k, v in signals.items()}
     check_variation(spec, tensors, source)
-    return Dataset(tensors, info)
+    return Dataset(tensors, info, {k: torch.tensor(np.asarray(v, dtype=float), dtype=dtype) for k, v in measured.items()})
 
 
 def check_variation(spec: ModelSpec, signals: Mapping[str, torch.Tensor], source: str) -> None:

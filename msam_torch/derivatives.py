@@ -101,10 +101,39 @@ def choose_window(y: np.ndarray, degree: int) -> tuple[int, float]:
     returns the window and the cut-off in cycles per sample."""
     n = y.size
     cutoff = max(cutoff_frequency(y, noise_level(y)), 1.0 / n)
-    window = int(round(((degree + 1) / cutoff + 4.6) / 3.2)) | 1
     smallest = (degree + 2) | 1
     largest = n if n % 2 else n - 1
-    return max(smallest, min(window, largest)), cutoff
+    return max(smallest, min(window_for(degree, cutoff), largest)), cutoff
+
+
+def window_for(degree: int, cutoff: float) -> int:
+    """Odd window of a degree-``degree`` local fit with cut-off ``cutoff`` cycles per sample (Schafer 2011)."""
+    return int(round(((degree + 1) / cutoff + 4.6) / 3.2)) | 1
+
+
+@dataclass(frozen=True)
+class InBand:
+    """``inner`` with its noise-floor cut-off raised to at least ``band`` cycles per sample, so it
+    does not cut into the band the record's inputs excite (a window or cut-off given is kept)."""
+
+    inner: "DerivativeEstimator"
+    band: float
+
+    @property
+    def name(self) -> str:
+        return self.inner.name
+
+    def estimate(self, t, y, order, where="signal") -> Estimate:
+        chosen = self.inner.choose(False) if isinstance(self.inner, Auto) else self.inner
+        if takes(chosen, "window") and chosen.window is None:
+            degree = LOESS_DEGREE if isinstance(chosen, Loess) else max(SAVGOL_DEGREE, order)
+            window = choose_window(np.asarray(y, dtype=float), degree)[0]
+            chosen = dataclasses.replace(chosen, window=min(window, max(window_for(degree, self.band), degree + 2)))
+        elif takes(chosen, "cutoff") and chosen.cutoff is None:
+            dt = float(np.median(np.diff(t)))
+            noise_floor = cutoff_frequency(np.asarray(y, dtype=float), noise_level(y))
+            chosen = dataclasses.replace(chosen, cutoff=min(max(noise_floor, self.band), HIGHEST_CUTOFF) / dt)
+        return chosen.estimate(t, y, order, where)
 
 
 @runtime_checkable

@@ -3,15 +3,24 @@ trial's retuned and adapted pair) one-step and in free run (:mod:`msam_torch.sim
 training and held-out data, with the part of the gap each closes (:mod:`.measures`)."""
 from __future__ import annotations
 
+import math
+
 import torch
 
+from ..errors import MSAMError
 from ..simulation import EquationModel, simulate_equations as simulate
+from ..simulation.solver import TABLEAUS
 from ..spec import Equation, ModelSpec
 from . import measures
 from .bootstrap import Bootstrap
 from .confidence import best_effect
 from .hypotheses import Fitted
 from .options import DiagnoseOptions
+
+PER_PERIOD = 0.04  # a fixed step starts at most at this share of the band's period
+HALVINGS = 2  # a fixed step is halved at most this often (then the runs are marked not converged)
+DIVERGED = 10.0  # a free run this many standard deviations off the measurement (NRMSE) has diverged
+AGREEMENT = 1e-2  # runs at a step and twice it agree within this share of a state's magnitude
 
 
 def models(extended: Equation, equation: Equation, nominal: torch.Tensor, choices: torch.Tensor, original: Fitted,
@@ -32,9 +41,18 @@ def models(extended: Equation, equation: Equation, nominal: torch.Tensor, choice
     return EquationModel(extended, stack(0), stack(1), stack(2), stack(3), scale)
 
 
-def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, series: dict, options: DiagnoseOptions) -> dict:
+def check_solver(method: str) -> None:
+    """A torchdiffeq method name, else an error naming the option."""
+    if method not in SOLVERS:
+        raise MSAMError(f"solver: {method!r} is not a torchdiffeq method (one of {', '.join(sorted(SOLVERS))})")
+
+
+def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, series: dict, options: DiagnoseOptions,
+            band: float = math.inf) -> dict:
     """One-step and free-run measures of the three models on training and held-out data; the
-    arrays the plots draw are added to ``series`` (per target).
+    arrays the plots draw are added to ``series`` (per target); ``band``: the band edge of the
+    measured states (cycles per time unit), which bounds a fixed solver step. A free run that diverges (not
+    finite, or NRMSE above :data:`DIVERGED`) is listed in ``diverged`` and has no NRMSE.
 
     Held-out data are simulated with every bootstrap trial's models (for the interval of the gap
     closed); training data with the three point models (all, when there are no held-out data)."""
@@ -51,15 +69,17 @@ def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, serie
     if not options.free_run:
         return out
     batches = {label: models if label == list(sets)[-1] else [_first(m, 3) for m in models] for label in sets}
-    trajectories = _simulate_sets(spec, sets, batches, options)
+    trajectories, solvers = _simulate_sets(spec, sets, batches, options, band)
     for label, dataset in sets.items():
         s, trajectory = dataset.signals, trajectories[label]
         measured = [x for x in spec.states if x in dataset.info.get("measured", spec.states)] or list(spec.states)
         per_state = {x: measures.by_model(measures.error_measures(s[x], trajectory[x][:3])) for x in spec.states}
         nrmse_all = torch.stack([torch.tensor(measures.error_measures(s[x], trajectory[x])["nrmse"])
                                  for x in measured]).mean(0)
+        off = ~torch.isfinite(nrmse_all[:3]) | (nrmse_all[:3] > DIVERGED)
         entry = {"states": per_state, "measured_states": measured,
-                 "nrmse": dict(zip(measures.MODELS, nrmse_all[:3].tolist()))}
+                 "nrmse": {m: None if o else v for m, v, o in zip(measures.MODELS, nrmse_all[:3].tolist(), off.tolist())},
+                 "diverged": [m for m, o in zip(measures.MODELS, off.tolist()) if o], "solver": solvers[label]}
         entry["gap_closed"] = {k: float(v[0]) for k, v in measures.closure(nrmse_all[0:1], nrmse_all[1:2], nrmse_all[2:3]).items()}
         if nrmse_all.shape[0] > 3:
             boot = measures.closure(nrmse_all[0].expand(nrmse_all[3::2].shape), nrmse_all[3::2], nrmse_all[4::2])
@@ -71,27 +91,73 @@ def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, serie
     return out
 
 
-def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: DiagnoseOptions) -> dict:
+def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: DiagnoseOptions, band: float) -> tuple:
     """Free runs from each set's first (estimated) state under its inputs; sets on the same time
-    grid are integrated in one batch."""
+    grid are integrated in one batch. A fixed-step solver without a given step starts at
+    :func:`~msam_torch.simulation.simulate_equations`'s default or 1/25 of the band's period, whichever is
+    shorter, and halves it until the three point models'
+    runs at the step and at twice it agree (:func:`converged`), at most :data:`HALVINGS` times
+    (each set's ``solver`` entry says whether they agreed); an adaptive one keeps its
+    tolerances, ``atol`` relative to each state's measured magnitude."""
     grids = {label: d.signals["t"] for label, d in sets.items()}
     same = len(sets) == 2 and grids["train"].shape == grids["held_out"].shape and torch.allclose(
         grids["train"], grids["held_out"])
     groups = [list(sets)] if same else [[label] for label in sets]
-    result = {}
+    fixed = options.solver in TABLEAUS
+    result, steps = {}, {}
     for group in groups:
+        t = grids[group[0]]
         sizes = [batches[label][0].choice.shape[0] for label in group]
         batch = [_concat([batches[label][e] for label in group]) for e in range(len(batches[group[0]]))]
         inputs = {u: torch.cat([sets[label].signals[u].expand(n, -1) for label, n in zip(group, sizes)])
                   for u in spec.inputs}
         initial = {x: torch.cat([sets[label].signals[x][0].expand(n) for label, n in zip(group, sizes)]) for x in spec.states}
         scale = {x: max(float(sets[label].signals[x].abs().max()) for label in group) for x in spec.states}
-        trajectory = simulate(spec, batch, grids[group[0]], inputs, initial, method=options.solver,
-                              step=options.solver_step, rtol=options.rtol, atol=options.atol, scale=scale)
+        atol = torch.tensor([options.atol * max(scale[x], torch.finfo(t.dtype).tiny) for x in spec.states],
+                            dtype=t.dtype, device=t.device)
+        run = lambda models, step, keep=None: simulate(
+            spec, models, t, {u: v if keep is None else v[keep] for u, v in inputs.items()},
+            {x: v if keep is None else v[keep] for x, v in initial.items()}, method=options.solver, step=step,
+            rtol=options.rtol, atol=atol, scale=scale)
+        step, agree = options.solver_step, True
+        trajectory = run(batch, step)
+        if fixed and step is None:  # the run at twice the step agrees, or the step is halved
+            step = min(float(t[1] - t[0]) * max(1, t.shape[0] // 500), PER_PERIOD / band)  # simulate's default
+            points = torch.cat([torch.arange(o, o + 3) for o in torch.tensor([0] + sizes[:-1]).cumsum(0).tolist()])
+            coarse = run([_pick(m, points) for m in batch], 2 * step, points)
+            for halving in range(HALVINGS + 1):
+                agree = converged(coarse, {x: v[points] for x, v in trajectory.items()}, scale)
+                if agree or halving == HALVINGS:
+                    break
+                coarse = {x: v[points] for x, v in trajectory.items()}
+                step /= 2
+                trajectory = run(batch, step)
+        for label in group:
+            steps[label] = {"method": options.solver, "step": step, "converged": agree,
+                            **({} if fixed else {"rtol": options.rtol, "atol": options.atol})}
         offsets = [0] + torch.tensor(sizes).cumsum(0).tolist()
         for k, label in enumerate(group):
             result[label] = {x: v[offsets[k]:offsets[k + 1]] for x, v in trajectory.items()}
-    return result
+    return result, steps
+
+
+def converged(coarse: dict, fine: dict, scale: dict) -> bool:
+    """Runs at two steps agree: RMS difference within :data:`AGREEMENT` of each state's
+    measured magnitude for every member, diverged (NaN) in both or in neither."""
+    for x, a in coarse.items():
+        b = fine[x]
+        if not torch.equal(torch.isnan(a).all(-1), torch.isnan(b).all(-1)):
+            return False
+        both = torch.isfinite(a) & torch.isfinite(b)
+        difference = torch.where(both, a - b, torch.zeros_like(a)).square().mean(-1).sqrt()
+        if bool((difference > AGREEMENT * max(scale[x], torch.finfo(a.dtype).tiny)).any()):
+            return False
+    return True
+
+
+def _pick(model: EquationModel, rows: torch.Tensor) -> EquationModel:
+    return EquationModel(model.equation, model.choice[rows], model.gamma[rows], model.theta[rows],
+                         model.theta_fixed[rows], model.scale)
 
 
 def _concat(models: list[EquationModel]) -> EquationModel:
@@ -102,5 +168,4 @@ def _concat(models: list[EquationModel]) -> EquationModel:
 
 
 def _first(model: EquationModel, b: int) -> EquationModel:
-    return EquationModel(model.equation, model.choice[:b], model.gamma[:b], model.theta[:b], model.theta_fixed[:b],
-                         model.scale)
+    return _pick(model, torch.arange(b))

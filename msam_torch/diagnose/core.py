@@ -19,8 +19,9 @@ from ..config import Config, load_config
 from ..data import DataArgument, resolve_datasets
 from ..plan import prepare
 from ..trainer import Algebraic
-from .compare import compare
+from .compare import check_solver, compare
 from .equation import diagnose_equation
+from .estimation import choose
 from .options import DiagnoseOptions
 from .report import GapReport
 from .simulated import diagnose_simulated
@@ -39,6 +40,7 @@ def diagnose(config: Config | dict | str | Path, data: DataArgument = None, vali
     any, alternate time blocks of the training record are held out). Paths in the config are
     relative to ``base_dir`` (default: the config file's folder).
     """
+    check_solver(options.solver)
     if base_dir is None:
         base_dir = Path(config).parent if isinstance(config, (str, Path)) else Path(".")
     if not isinstance(config, Config):
@@ -53,15 +55,19 @@ def diagnose(config: Config | dict | str | Path, data: DataArgument = None, vali
     started = time.perf_counter()  # the diagnosis itself, data loading excluded
     parameters = nominal_parameters(config, spec)
     generator = torch.Generator().manual_seed(options.seed)
-    equations = [diagnose_equation(spec, equation, train, held_out, parameters, options, generator)
+    estimation = choose(spec, config.data, train, held_out, plan.derivatives, options.half_width,
+                        options.quadrature_samples)
+    equations = [diagnose_equation(spec, equation, train, estimation, parameters, options, generator)
                  for equation in spec.equations]
     gaps = tuple(e.gap for e in equations)
     series = {e.gap.target: e.series for e in equations}
-    gap_measures = compare(spec, [e.model for e in equations], train, held_out, series, options)
-    kind, verdict = overall(gaps, any(g.significant for g in gaps), name_targets=len(gaps) > 1)
+    gap_measures = compare(spec, [e.model for e in equations], train, held_out, series, options,
+                           estimation.info["band_edge"])
+    kind, verdict, reasons = overall(gaps, any(g.significant for g in gaps), name_targets=len(gaps) > 1,
+                                     free_run=gap_measures.get("free_run"))
     data_info = {"train": dict(train.info),
                  "held_out": dict(held_out.info) if held_out is not None else "alternate time blocks",
                  "nominal_parameters": parameters}
     return GapReport(verdict_kind=kind, verdict=verdict, equations=gaps, measures=gap_measures, data=data_info,
                      options=asdict(options), config=config.model_dump(mode="json"),
-                     seconds=time.perf_counter() - started, series=series)
+                     seconds=time.perf_counter() - started, reasons=tuple(reasons), series=series)

@@ -17,13 +17,14 @@ from ..step import StepOptions
 from . import catalogue, confidence
 from .bootstrap import bootstrap
 from .compare import models
+from .estimation import Estimation
 from .hypotheses import (Fitted, Hypothesis, encode, enumerate_hypotheses, exponent, extended_equation, fit,
                          fitted_text, heldout_rmse)
 from .localise import starting_where
 from .naming import named_exponent, snapped_names
 from .options import DiagnoseOptions
 from .report import EquationGap
-from .structure import structure_left
+from .structure import residual_checks, structure_left
 from .verdict import Verdict, equation_verdict
 from .weak import WeakForm, target_source
 
@@ -38,14 +39,13 @@ class EquationDiagnosis:
     series: dict
 
 
-def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, held_out: Dataset | None,
+def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estimation: Estimation,
                       parameters: dict, options: DiagnoseOptions, generator: torch.Generator) -> EquationDiagnosis:
-    """The stages of the diagnosis of ``equation`` (module docstring); ``generator`` draws the
-    bootstrap trials."""
+    """The stages of the diagnosis of ``equation`` (module docstring) on the signals and
+    half-width of ``estimation``; ``generator`` draws the bootstrap trials."""
     # weak-form rows of the equation extended by a copy of every adjustable component
     extended = extended_equation(equation)
-    weak = WeakForm.build(extended, train.signals, None if held_out is None else held_out.signals,
-                          options.half_width, options.quadrature_samples, options.blocks)
+    weak = WeakForm.build(extended, estimation.train, estimation.held_out, estimation.half_width, options.blocks)
     t = weak.signals["t"]
     # every hypothesis fitted at once, scored on the held-out rows
     hypotheses = enumerate_hypotheses(equation)
@@ -56,7 +56,8 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, held_
 
     # bootstrap trials: time blocks and measurement noise
     source, order = target_source(extended, weak.signals)
-    noise = float(train.info.get("noise_level", {}).get(source, 0.0) or 0.0)
+    # white noise keeps about 1 / decimation of its power through the anti-alias filter
+    noise = float(train.info.get("noise_level", {}).get(source, 0.0) or 0.0) / estimation.decimation**0.5
     boot = bootstrap(weak, choices, original, rmse, noise, order, options, step_options, generator)
 
     # catalogue names, exponents snapped into an entry's interval where that keeps the improvement
@@ -80,8 +81,11 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, held_
 
     # verdict (with the residual structure the effect leaves), and where the starting model fails
     structure = structure_left(equation, weak, choices, original, best)
-    kind = equation_verdict(is_significant, outcome != catalogue.NOT_CATALOGUED, sure["win_frequency"], structure,
-                            options)
+    checks = residual_checks(equation, weak, choices, original, [u for u in spec.inputs if u in weak.val_signals],
+                             options.check_level, options.max_residual_structure, options.absolute,
+                             estimation.reach)
+    kind, reasons = equation_verdict(is_significant, outcome != catalogue.NOT_CATALOGUED, sure["win_frequency"],
+                                     structure, checks, options)
     winner = best if is_significant else 0
     where = starting_where(equation, weak.signals)
 
@@ -101,8 +105,8 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, held_
         structure_left=structure, components=_components(equation, hypotheses, rmse),
         ranking=_ranking(equation, hypotheses, rmse, names, snapped, original, text), where=where["summary"],
         estimator={"test_function": "bump (1-s^2)^4", "half_width": weak.tests.half_width * weak.tests.dt,
-                   "half_width_samples": weak.tests.half_width, "rows": weak.rows,
-                   "derivatives": train.info.get("derivatives")},
+                   "half_width_samples": weak.tests.half_width, "rows": weak.rows, **estimation.info},
+        checks={**checks, "reasons": reasons},
     )
     model = models(extended, equation, nominal, choices, original, boot, winner, is_effect, weak.scale)
     return EquationDiagnosis(gap, model, {"where": where["series"]})

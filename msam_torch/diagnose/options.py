@@ -8,22 +8,24 @@ from dataclasses import dataclass
 class DiagnoseOptions:
     """Options of :func:`msam_torch.diagnose.diagnose` (defaults are the documented method)."""
 
-    half_width: float | None = None  # test-function half-width in time units (default: 2 % of the record)
+    half_width: float | None = None  # test-function half-width in time units (default: from the band, .estimation)
     steps: int = 30  # damped variable-projection steps per hypothesis
     damping: float = 1e-3  # Levenberg-Marquardt damping of the exponent steps
     bootstrap: int = 16  # bootstrap trials (time blocks and noise), run as one batch
     bootstrap_steps: int = 8  # steps per bootstrap trial, warm-started at the original fit
     bootstrap_hypotheses: int = 5  # the best effect hypotheses (and the re-fitted start) re-fitted per trial
-    quadrature_samples: int = 1000  # weak-form quadrature uses every k-th sample to stay near this many
+    quadrature_samples: int = 1000  # records are low-pass filtered and decimated to about this many samples
     blocks: int = 10  # time blocks for the bootstrap and, without held-out data, the held-out split
     relative: float = 0.05  # null rule: held-out RMSE at least 5 % below the re-fitted starting model
     absolute: float = 0.002  # ... and by 0.2 % of the held-out target's RMS
     min_win_frequency: float = 0.5  # bootstrap share the named effect must win
     snap_keep: float = 0.9  # a catalogue exponent must keep this share of the free exponent's improvement
     max_structure_left: float = 0.25  # residual structure the effect may leave (share of the gap's)
+    check_level: float = 0.01  # "no significant gap": p-values of the residual's whiteness checks at least this
+    max_residual_structure: float = 0.2  # ... and nearest neighbours predict at most this share of its mean square
     free_run: bool = True  # simulate the models (torchdiffeq)
     solver: str = "rk4"  # torchdiffeq method of the free-run simulations
-    solver_step: float | None = None  # fixed-step size in time units (default: see simulate.simulate)
-    rtol: float = 1e-6  # adaptive solvers only
-    atol: float = 1e-9
+    solver_step: float | None = None  # fixed-step solvers: step in time units (default: halved until converged)
+    rtol: float = 1e-6  # adaptive solvers: relative tolerance
+    atol: float = 1e-8  # adaptive solvers: absolute tolerance, relative to each state's measured magnitude
     seed: int = 0

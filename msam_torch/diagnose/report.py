@@ -57,6 +57,7 @@ class EquationGap:
     ranking: list
     where: dict
     estimator: dict
+    checks: dict = field(default_factory=dict)  # residual checks of "no significant gap" and the reasons
 
     @property
     def verdict(self) -> str:
@@ -77,10 +78,11 @@ class GapReport:
     options: dict
     config: dict
     seconds: float
+    reasons: tuple = ()  # why the verdict is inconclusive, and what to try
     series: dict = field(default_factory=dict, repr=False, compare=False)  # arrays for the plots
 
     def __str__(self) -> str:
-        lines = [f"verdict: {self.verdict}"]
+        lines = [f"verdict: {self.verdict}"] + [f"  {r}" for r in self.reasons]
         for g in self.equations:
             c = g.confidence
             lines.append(f"{g.target}: {g.verdict}")
@@ -107,11 +109,11 @@ class GapReport:
                              f"theta re-fitted {m['retuned']['sum_abs_error']:.4g}, "
                              f"adapted {m['adapted']['sum_abs_error']:.4g}")
         for label, entry in self.measures.get("free_run", {}).items():
-            n = entry["nrmse"]
-            closed = entry["gap_closed"]
-            lines.append(f"free-run NRMSE ({label}): start {n['start']:.4g}, theta re-fitted {n['retuned']:.4g}, "
-                         f"adapted {n['adapted']:.4g}; closed by retuning {100 * closed['retuning']:.0f} %, "
-                         f"by the effect {100 * closed['effect']:.0f} %")
+            n = {m: "diverged" if v is None else f"{v:.4g}" for m, v in entry["nrmse"].items()}
+            closed = {k: "-" if v is None else f"{100 * v:.0f} %" for k, v in entry["gap_closed"].items()}
+            lines.append(f"free-run NRMSE ({label}): start {n['start']}, theta re-fitted {n['retuned']}, "
+                         f"adapted {n['adapted']}; closed by retuning {closed['retuning']}, "
+                         f"by the effect {closed['effect']}")
         lines.append(f"({self.seconds:.2f} s)")
         return "\n".join(lines)
 

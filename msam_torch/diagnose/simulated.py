@@ -63,7 +63,7 @@ def diagnose_simulated(plan: Plan, base_dir: Path, options, data=None, validatio
             series[eq.target][f"free_run_{RECORDS[key]}"] = _trajectories(run)
         gaps.append(_equation_gap(eq, adapted, models["start"][e].theta, models["retuned"][e].theta, significant,
                                   rmse, target_rms, where["summary"], options, plan))
-    kind, verdict = overall(gaps, significant, name_targets=True)
+    kind, verdict, reasons = overall(gaps, significant, name_targets=True)
     left = [f"{g.target} where {g.where['regions'][0]['rule']}" for g in gaps if g.where["flagged_fraction"] > 0]
     if left:
         verdict += f"; remaining gap not explained by the candidate set ({', '.join(left)})"
@@ -72,7 +72,7 @@ def diagnose_simulated(plan: Plan, base_dir: Path, options, data=None, validatio
                  "nominal_parameters": parameters, "simulation": result.data["simulation"]}
     return GapReport(verdict_kind=kind, verdict=verdict, equations=tuple(gaps), measures=gap_measures, data=data_info,
                      options=asdict(options), config=config.model_dump(mode="json"),
-                     seconds=time.perf_counter() - started, series=series)
+                     seconds=time.perf_counter() - started, reasons=tuple(reasons), series=series)
 
 
 def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retuned: list, significant: bool,

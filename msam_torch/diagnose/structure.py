@@ -1,15 +1,24 @@
 """Residual structure a hypothesis leaves: how much of the re-fitted start's held-out weak-form
 residual a k-nearest-neighbour regression on the equation's signals predicts, before and after
-the effect (a verdict check: an effect that leaves most of the structure does not explain the gap)."""
+the effect (a verdict check: an effect that leaves most of the structure does not explain the gap);
+and the checks "no significant gap" needs (:func:`residual_checks`): the re-fitted start's
+residual on non-overlapping test functions is white (Ljung-Box), uncorrelated with the inputs at
+any lag, and holds little nearest-neighbour structure."""
 from __future__ import annotations
 
+import math
+
 import torch
+from scipy.stats import norm
+from statsmodels.stats.diagnostic import acorr_ljungbox
 
 from ..spec import Equation
 from .hypotheses import Fitted, predict_rows
 from .weak import TestFunctions, WeakForm
 
 NEIGHBOURS = 10
+LAGS = 10  # autocorrelation and input cross-correlation lags, at most
+FEWEST_ROWS = 12  # independent rows the residual checks need
 
 
 def _features(equation: Equation, signals: dict, tests: TestFunctions):
@@ -17,9 +26,10 @@ def _features(equation: Equation, signals: dict, tests: TestFunctions):
     return names, torch.stack([tests.average(signals[n]) for n in names], -1)
 
 
-def structure_left(equation: Equation, weak: WeakForm, choices: torch.Tensor, original: Fitted, best: int) -> float:
-    """Share of the re-fitted start's residual structure (what a k-nearest-neighbour regression on
-    the equation's signals predicts on held-out rows) that hypothesis ``best`` leaves."""
+def _explained(equation: Equation, weak: WeakForm, choices: torch.Tensor, original: Fitted,
+               hypotheses: tuple[int, ...]) -> list[tuple[float, float]]:
+    """Per hypothesis: the held-out residual's mean square that a k-nearest-neighbour regression of
+    the training residual on the equation's signals predicts, and the residual's mean square."""
     _, x_fit = _features(equation, weak.signals, weak.tests)
     _, x_val = _features(equation, weak.val_signals, weak.val_tests)
     x_fit, x_val = x_fit[weak.fit_rows], x_val[weak.val_rows]
@@ -30,9 +40,67 @@ def structure_left(equation: Equation, weak: WeakForm, choices: torch.Tensor, or
     fit_pred = predict_rows(weak.data, choices, original)[0]  # rows of the weighted fit: weights are 0/1
     val_pred = predict_rows(weak.val_data, choices, original)[0]
     explained = []
-    for c in (0, best):
+    for c in hypotheses:
         r_fit = (weak.data.y[0] - fit_pred[c])[weak.fit_rows]
         r_val = (weak.val_data.y[0] - val_pred[c])[weak.val_rows]
         guess = r_fit[neighbours].mean(-1)
-        explained.append(float(((r_val**2).mean() - ((r_val - guess) ** 2).mean()).clamp_min(0)))
-    return explained[1] / explained[0] if explained[0] > 0 else 0.0
+        explained.append((float(((r_val**2).mean() - ((r_val - guess) ** 2).mean()).clamp_min(0)),
+                          float((r_val**2).mean())))
+    return explained
+
+
+def structure_left(equation: Equation, weak: WeakForm, choices: torch.Tensor, original: Fitted, best: int) -> float:
+    """Share of the re-fitted start's residual structure (what a k-nearest-neighbour regression on
+    the equation's signals predicts on held-out rows) that hypothesis ``best`` leaves."""
+    (start, _), (effect, _) = _explained(equation, weak, choices, original, (0, best))
+    return effect / start if start > 0 else 0.0
+
+
+def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, original: Fitted, inputs: list[str],
+                    level: float, largest_structure: float, negligible: float, reach: int = 0) -> dict:
+    """Whether the re-fitted start's held-out residual looks like noise: on rows of test functions
+    apart by their length plus ``reach`` samples (the window of a derivative estimate; then the rows
+    are independent under white measurement noise), the Ljung-Box p-value of its
+    autocorrelation and the Bonferroni p-value of its largest cross-correlation with the inputs'
+    window averages (lags up to :data:`LAGS`), each at least ``level``, and the share of its mean
+    square a nearest-neighbour regression predicts at most ``largest_structure``. A residual
+    within ``negligible`` of the held-out target's RMS passes, and so (``unchecked``) does one with
+    fewer than :data:`FEWEST_ROWS` independent rows. ``failed`` names the checks missed."""
+    residual = (weak.val_data.y[0] - predict_rows(weak.val_data, choices, original)[0, 0])
+    rows = torch.nonzero(weak.val_rows).squeeze(-1)
+    apart = math.ceil((weak.val_tests.kernels.shape[-1] + reach) / weak.val_tests.stride)
+    rows = rows[::apart]
+    r = residual[rows].double().cpu()
+    out = {"independent_rows": int(rows.numel()), "ljung_box_p": None, "input_correlation_p": None,
+           "structure_share": None, "failed": []}
+    if float(residual[weak.val_rows].square().mean().sqrt()) <= negligible * weak.target_rms:
+        return {**out, "negligible": True}
+    if rows.numel() < FEWEST_ROWS:  # too short a record to tell: noted, not failed
+        return {**out, "unchecked": f"only {rows.numel()} independent held-out rows"}
+    lags = max(1, min(LAGS, rows.numel() // 5))
+    out["ljung_box_p"] = float(acorr_ljungbox(r.numpy(), lags=[lags])["lb_pvalue"].iloc[0])
+    n = r.numel()
+    z = (r - r.mean()) / r.std().clamp_min(torch.finfo(r.dtype).tiny)
+    largest, tests = 0.0, 0
+    for name in inputs:
+        u = weak.val_tests.average(weak.val_signals[name])[rows].double().cpu()
+        if float(u.std()) == 0.0:
+            continue
+        u = (u - u.mean()) / u.std()
+        for lag in range(-lags, lags + 1):
+            a, b = (z[lag:], u[:n - lag]) if lag >= 0 else (z[:n + lag], u[-lag:])
+            largest = max(largest, abs(float((a * b).mean())) * math.sqrt(a.numel()))
+            tests += 1
+    if tests:
+        out["input_correlation_p"] = float(min(1.0, tests * 2 * norm.sf(largest)))
+    explained, total = _explained(equation, weak, choices, original, (0,))[0]
+    out["structure_share"] = explained / total if total > 0 else 0.0
+    if out["ljung_box_p"] < level:
+        out["failed"].append(f"the re-fitted start's residual is autocorrelated (Ljung-Box p = {out['ljung_box_p']:.2g})")
+    if out["input_correlation_p"] is not None and out["input_correlation_p"] < level:
+        out["failed"].append("the re-fitted start's residual is correlated with the inputs "
+                             f"(p = {out['input_correlation_p']:.2g})")
+    if out["structure_share"] > largest_structure:
+        out["failed"].append(f"the signals predict {100 * out['structure_share']:.0f} % of the re-fitted start's "
+                             "residual (nearest neighbours)")
+    return out

@@ -1,5 +1,8 @@
-"""The verdict of a diagnosis: one equation's, from the null rule, the bootstrap and the residual
-structure left; the report's, from its equations' (design.md section 3)."""
+"""The verdict of a diagnosis: one equation's, from the null rule, the bootstrap, the residual
+structure left and (for "no significant gap") the residual checks; the report's, from its
+equations' and the free runs' checks (design.md section 3): a verdict is given only when the theta
+re-fitted start is no worse than the nominal model on held-out data and the free runs it rests on
+do not diverge; otherwise it is inconclusive, with the reasons and what to try."""
 from __future__ import annotations
 
 from enum import Enum
@@ -15,7 +18,7 @@ class Verdict(str, Enum):
     EXPLAINED = "explained"
     NO_GAP = "no_gap"
     NOT_EXPLAINED = "not_explained"
-    INCONCLUSIVE = "inconclusive"  # the data cannot tell (no stage decides this yet)
+    INCONCLUSIVE = "inconclusive"  # a check failed: the reasons say which and what to try
 
     def text(self, effect: str | None = None) -> str:
         if self is Verdict.EXPLAINED:
@@ -24,28 +27,73 @@ class Verdict(str, Enum):
 
 
 _TEXT = {Verdict.NO_GAP: "no significant gap", Verdict.NOT_EXPLAINED: "gap not explained by the candidate set",
-         Verdict.INCONCLUSIVE: "inconclusive: the data cannot tell"}
+         Verdict.INCONCLUSIVE: "inconclusive"}
+NO_WORSE = 0.01  # the re-fitted start's held-out free-run NRMSE may exceed the nominal one's by this share
+TRY = {"estimation": "try another --half-width or a held-out record from another excitation",
+       "diverged": "try --solver dopri5 or a smaller --solver-step; a model that diverges on its own is not a fit",
+       "residual": "the starting model misses something the candidates do not express: add candidate adjustments "
+                   "or components, or try another --half-width"}
 
 
 def equation_verdict(significant: bool, named: bool, win_frequency: float, structure_left: float,
-                     options: DiagnoseOptions) -> Verdict:
-    """One equation: a significant effect (null rule) is explained when it has a catalogue name, wins
-    at least ``options.min_win_frequency`` of the bootstrap trials (NaN without trials: not
-    checked) and leaves at most ``options.max_structure_left`` of the residual structure."""
+                     checks: dict, options: DiagnoseOptions) -> tuple[Verdict, list[str]]:
+    """One equation and its reasons: a significant effect (null rule) is explained when it has a
+    catalogue name, wins at least ``options.min_win_frequency`` of the bootstrap trials (NaN
+    without trials: not checked) and leaves at most ``options.max_structure_left`` of the residual
+    structure; no significant effect is "no significant gap" only when the re-fitted start's
+    residual passes ``checks`` (:func:`~.structure.residual_checks`), else inconclusive."""
     if not significant:
-        return Verdict.NO_GAP
+        if checks["failed"]:
+            return Verdict.INCONCLUSIVE, [*checks["failed"], TRY["residual"]]
+        return Verdict.NO_GAP, []
     if named and not win_frequency < options.min_win_frequency and structure_left <= options.max_structure_left:
-        return Verdict.EXPLAINED
-    return Verdict.NOT_EXPLAINED
+        return Verdict.EXPLAINED, []
+    return Verdict.NOT_EXPLAINED, []
 
 
-def overall(gaps: Sequence, significant: bool, name_targets: bool) -> tuple[Verdict, str]:
-    """The report's verdict from its equations' (:class:`~.report.EquationGap`): every explained
-    equation's (``in <target>`` when ``name_targets``), else not explained when ``significant``,
-    else no gap."""
+def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
+    """Why the free runs do not support a verdict of ``kind``: the re-fitted start worse than the
+    nominal model (held-out data, else training), a diverged run the verdict rests on (the
+    re-fitted start always; the adapted model for an explained gap), or runs that did not converge."""
+    if not free_run:
+        return []
+    label = "held_out" if "held_out" in free_run else "train"
+    entry = free_run[label]
+    diverged, nrmse = entry["diverged"], entry["nrmse"]
+    reasons = []
+    rests_on = ["retuned", "adapted"] if kind is Verdict.EXPLAINED else ["retuned"]
+    for model in rests_on:
+        if model in diverged:
+            reasons.append(f"the {_MODEL[model]} model's free run on {label} data diverged")
+    if not entry["solver"]["converged"]:
+        reasons.append(f"the free runs did not converge when the {entry['solver']['method']} step was halved to "
+                       f"{entry['solver']['step']:.3g}")
+    if reasons:
+        return reasons + [TRY["diverged"]]
+    if "start" not in diverged and nrmse["retuned"] > (1 + NO_WORSE) * nrmse["start"]:
+        return [f"the theta re-fitted starting model's free run on {label} data is worse than the nominal model's "
+                f"(NRMSE {nrmse['retuned']:.3g} vs {nrmse['start']:.3g}): the estimation is off", TRY["estimation"]]
+    return []
+
+
+_MODEL = {"start": "starting", "retuned": "theta re-fitted", "adapted": "adapted"}
+
+
+def overall(gaps: Sequence, significant: bool, name_targets: bool,
+            free_run: dict | None = None) -> tuple[Verdict, str, list[str]]:
+    """The report's verdict from its equations' (:class:`~.report.EquationGap`) and the free runs:
+    inconclusive when :func:`free_run_reasons` finds any; else every explained equation's
+    (``in <target>`` when ``name_targets``); else inconclusive when an equation is; else not
+    explained when ``significant``; else no gap. Returns the kind, its text and the reasons."""
     explained = [g for g in gaps if g.verdict_kind is Verdict.EXPLAINED]
+    undecided = [g for g in gaps if g.verdict_kind is Verdict.INCONCLUSIVE]
+    kind = (Verdict.EXPLAINED if explained else Verdict.INCONCLUSIVE if undecided
+            else Verdict.NOT_EXPLAINED if significant else Verdict.NO_GAP)
+    reasons = free_run_reasons(free_run or {}, kind)
+    if reasons:
+        return Verdict.INCONCLUSIVE, Verdict.INCONCLUSIVE.text(), reasons
     if explained:
-        return Verdict.EXPLAINED, "; ".join(f"{g.verdict} in {g.target}" if name_targets else g.verdict
-                                            for g in explained)
-    kind = Verdict.NOT_EXPLAINED if significant else Verdict.NO_GAP
-    return kind, kind.text()
+        return kind, "; ".join(f"{g.verdict} in {g.target}" if name_targets else g.verdict for g in explained), []
+    if undecided:
+        return kind, kind.text(), [f"{g.target}: {r}" for g in undecided for r in g.checks.get("reasons", [])]
+    return kind, kind.text(), []

@@ -108,12 +108,6 @@ def weak_data(extended: Equation, signals: dict, tests: TestFunctions, scale: to
     return replace(data, y=y, fixed_components=fixed, project=Projection(tests, root))
 
 
-def subsample(signals: dict, target: int) -> dict:
-    """Every k-th sample, k chosen to keep about ``target`` samples."""
-    every = max(1, signals["t"].shape[0] // target)
-    return {k: v[::every] for k, v in signals.items()}
-
-
 @dataclass(frozen=True)
 class WeakForm:
     """The weak-form rows of one (extended) equation: training rows (``data``, weighted 0/1 by
@@ -132,19 +126,18 @@ class WeakForm:
     val_data: EquationData
 
     @classmethod
-    def build(cls, extended: Equation, train: dict, held_out: dict | None, half_width: float | None,
-              samples: int, blocks: int) -> "WeakForm":
-        """Rows of ``train`` (and ``held_out``) signals subsampled to about ``samples``; test
-        functions of ``half_width`` time units (default 2 % of the record); without held-out
-        signals, alternate ones of ``blocks`` time blocks of the training rows are held out."""
-        signals = subsample(train, samples)
+    def build(cls, extended: Equation, train: dict, held_out: dict | None, half_width: float,
+              blocks: int) -> "WeakForm":
+        """Rows of the ``train`` (and ``held_out``) signals (:mod:`.estimation` prepares them);
+        test functions of ``half_width`` time units; without held-out signals, alternate ones of
+        ``blocks`` time blocks of the training rows are held out."""
+        signals = train
         t = signals["t"]
-        half_width = half_width or 0.02 * float(t[-1] - t[0])
         tests = TestFunctions.build(t, max(4, round(half_width / float(t[1] - t[0]))))
         m = tests.count(t.shape[0])
         scale = EquationData.build(extended, signals, "rms").scale[0]
         if held_out is not None:
-            val_signals = subsample(held_out, samples)
+            val_signals = held_out
             val_dt = float(val_signals["t"][1] - val_signals["t"][0])
             val_tests = TestFunctions.build(val_signals["t"], max(4, round(half_width / val_dt)))
             fit_rows = torch.ones(m, dtype=torch.bool, device=t.device)

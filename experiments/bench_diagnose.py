@@ -1,0 +1,80 @@
+"""Diagnosis benchmark and record-length invariance: the default ``diagnose`` of a 2-state case
+(mass-spring-damper with Coulomb friction withheld, position and force measured, 1 % noise) on
+a 2,000-sample record, on records 10x (and ``--longer``) longer at the same sampling period, and
+on one sampled 10x faster over the same time; each run's wall time, its ratio to the 2,000-sample
+run's, the verdict, the exponent and the test-function half-width chosen.
+
+    PYTHONPATH=. python experiments/bench_diagnose.py [--threads 1] [--longer 10 50] [--repeats 3]
+
+The time is the diagnosis itself (``GapReport.seconds``: data loading excluded), the median of
+``--repeats`` runs.
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+from dataclasses import replace
+
+import numpy as np
+import torch
+
+from msam_torch.config import DataConfig, load_config
+from msam_torch.data import build_dataset
+from msam_torch.diagnose import diagnose
+from msam_torch.spec import ModelSpec
+from msam_torch.systems import SYSTEMS, WITHHELD, simulate
+
+CASE = "msd_coulomb"
+NOISE = 0.01
+
+
+def records(length: float, faster: int, case: str = CASE) -> tuple:
+    """Training and held-out datasets of a withheld-effect ``case``, ``length`` times the bundled
+    record's duration, sampled ``faster`` times faster."""
+    w = WITHHELD[case]
+    spec = ModelSpec.from_config(load_config({"model": w.model}).model)
+    rng = np.random.default_rng(0)
+    out = []
+    for name in (w.system, w.held_out):
+        base = SYSTEMS[name]
+        system = replace(base, samples=int(round((base.samples - 1) * length * faster)) + 1, t_end=base.t_end * length)
+        sim = {k: v.numpy() for k, v in simulate(system, rtol=1e-8, atol=1e-10).items()}
+        measured = {k: sim[k] + (0 if k in system.inputs else NOISE * sim[k].std() * rng.standard_normal(sim[k].size))
+                    for k in system.measured}
+        out.append(build_dataset(sim["t"], measured, DataConfig(derivatives="savgol"), spec, {"source": name},
+                                 torch.float64))
+    return w, out
+
+
+def run(length: float, faster: int, repeats: int) -> dict:
+    w, (train, held_out) = records(length, faster)
+    config = {"model": w.model, "data": {"parametric_error": 0.2, "seed": 1}}
+    reports = [diagnose(config, data=train, validation=held_out) for _ in range(repeats)]
+    g = reports[0].equations[0]
+    return {"samples": int(train.t.numel()), "seconds": statistics.median(r.seconds for r in reports),
+            "verdict": reports[0].verdict, "exponent": g.exponent, "half_width": g.estimator["half_width"],
+            "decimation": g.estimator["decimation"]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--longer", type=float, nargs="*", default=[10.0])
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    rows = [("1x", run(1.0, 1, args.repeats))]
+    rows += [(f"{k:g}x longer", run(k, 1, args.repeats)) for k in args.longer]
+    rows.append(("10x faster sampling", run(1.0, 10, args.repeats)))
+    base = rows[0][1]["seconds"]
+    print(f"{CASE}, {100 * NOISE:g} % noise, {args.threads} torch threads, median of {args.repeats} runs")
+    print("| record | samples | diagnosis s | ratio to 1x | verdict | exponent | half-width | decimation |")
+    print("|---|---|---|---|---|---|---|---|")
+    for label, r in rows:
+        exponent = "-" if r["exponent"] is None else f"{r['exponent']:.3f}"
+        print(f"| {label} | {r['samples']} | {r['seconds']:.2f} | {r['seconds'] / base:.2f} | {r['verdict']} | "
+              f"{exponent} | {r['half_width']:.3g} | {r['decimation']} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,119 @@
+"""Estimation chosen from the record (design.md section 3b): the band the signals occupy, the
+test-function half-width and quadrature rate it implies, and the weak form's signals.
+
+The weak form integrates the measured signals themselves; a derivative the data do not hold
+(``x_dot`` with only ``x`` measured) is estimated with a smoother whose cut-off lies above the
+band (:class:`~msam_torch.derivatives.InBand`). The band edge ``f_b`` is the highest, over the
+measured states (what the inputs excited in the system), of the frequency below which 99 % of a signal's power above its
+white-noise floor lies; the bump test function passes ``f_b`` at half amplitude for the half-width
+``h = 0.6 / f_b`` (time units of the system, not a share of the record). Records sampled far
+faster than the band are low-pass filtered and decimated (``scipy.signal.decimate``) to about
+``quadrature_samples`` samples, never below 7 samples per band period nor 16 per half-width."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy.ndimage import uniform_filter1d
+from scipy.signal import decimate
+
+from ..config import DataConfig
+from ..data import Dataset, build_dataset
+from ..derivatives import BAND, DerivativeEstimator, InBand, noise_level
+from ..errors import DataError
+from ..spec import ModelSpec
+
+POWER_SHARE = 0.99  # share of a signal's power above the noise floor that lies in the band
+HALF_AMPLITUDE = 0.6  # f h at which the bump (1 - s^2)^4 of half-width h passes half the amplitude
+SAMPLES_PER_PERIOD = 7  # decimation keeps the band edge below 1/7 of the sampling rate
+DERIVATIVE_MARGIN = 2.0  # a derivative's smoother passes twice the band edge
+SHORTEST = 4  # samples in a test function's half-width, at least
+QUADRATURE = 16  # decimation keeps at least this many samples in a half-width
+WIDEST = 0.1  # of the record: a test function's half-width, at most
+
+
+def band_edge(y: np.ndarray) -> float:
+    """Frequency (cycles per sample) below which :data:`POWER_SHARE` of the power of ``y`` above
+    its white-noise floor lies (detrended, Hann-tapered, band-averaged periodogram)."""
+    n = y.size
+    index = np.arange(n)
+    detrended = y - np.polyval(np.polyfit(index, y, 1), index)
+    taper = np.hanning(n)
+    power = uniform_filter1d(np.abs(np.fft.rfft(detrended * taper)) ** 2, size=min(BAND, n // 2 + 1), mode="nearest")
+    signal = np.clip(power - noise_level(y) ** 2 * np.sum(taper**2), 0.0, None)
+    total = np.cumsum(signal)
+    if total[-1] <= 0:
+        return 0.5
+    return float(np.fft.rfftfreq(n)[np.searchsorted(total, POWER_SHARE * total[-1])])
+
+
+@dataclass(frozen=True)
+class Estimation:
+    """The weak form's signals (training and held out), its test-function half-width (time units)
+    and how both were chosen (``info``, the report's estimator section)."""
+
+    train: dict
+    held_out: dict | None
+    half_width: float
+    decimation: int
+    info: dict
+
+    @property
+    def reach(self) -> int:
+        """Samples over which a derivative estimate spreads one sample's noise (its widest window)."""
+        derivatives = self.info["derivatives"]
+        windows = [d.get("window") or 0 for d in derivatives.values()] if isinstance(derivatives, dict) else []
+        return max(windows, default=0)
+
+
+def _measured(dataset: Dataset) -> dict[str, np.ndarray]:
+    given = {"t": dataset.t, **(dataset.measured or dataset.signals)}
+    return {k: v.detach().cpu().numpy() for k, v in given.items()}
+
+
+def _signals(measured: dict, every: int, band: float, data: DataConfig, spec: ModelSpec, dtype,
+             estimator: DerivativeEstimator, exact: bool, source: str) -> dict:
+    """Decimated measured signals and the derivatives the model reads that they lack."""
+    t = measured["t"][::every]
+    kept = {k: (decimate(v, every, ftype="fir", zero_phase=True) if every > 1 else v)[:t.size]
+            for k, v in measured.items() if k != "t"}
+    if exact:  # every signal given (noise-free simulation): nothing to estimate
+        return {"t": torch.tensor(t, dtype=dtype), "derivatives": "given",
+                **{k: torch.tensor(np.ascontiguousarray(v), dtype=dtype) for k, v in kept.items()}}
+    dataset = build_dataset(t, kept, data, spec, {}, dtype, source, InBand(estimator, min(band * every, 0.45)),
+                            keep_measured=True)
+    return {**dataset.signals, "derivatives": dataset.info["derivatives"]}
+
+
+def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset | None,
+           estimator: DerivativeEstimator, half_width: float | None, samples: int) -> Estimation:
+    """The band of ``train``'s measured states and inputs, the half-width (``half_width`` when
+    given) and decimation it implies, and both records' weak-form signals on the training device."""
+    measured = _measured(train)
+    t = measured["t"]
+    dt = float(t[1] - t[0])
+    edges = {k: band_edge(measured[k]) for k in measured if k != "t" and np.ptp(measured[k]) > 0}
+    states = [edges[k] for k in edges if k not in spec.inputs]
+    band = max(states or edges.values(), default=0.5)  # cycles per sample
+    rule = "given" if half_width else f"band edge {band / dt:.4g} cycles per time unit"
+    half_width = half_width or HALF_AMPLITUDE / (band / dt)
+    record = float(t[-1] - t[0])
+    half_width = min(max(half_width, SHORTEST * dt), WIDEST * record)
+    every = max(1, min(t.size // samples, int(1 / (SAMPLES_PER_PERIOD * band)), int(half_width / (QUADRATURE * dt))))
+    exact = not train.measured
+    device, dtype = train.t.device, train.t.dtype
+    build = lambda d, source: _signals(_measured(d), every, DERIVATIVE_MARGIN * band, data, spec, dtype, estimator,
+                                       exact, source)
+    try:
+        signals = build(train, "training data")
+        held = None if held_out is None else build(held_out, "held-out data")
+    except DataError as error:
+        raise DataError(f"after decimation by {every}: {error}") from None
+    derivatives = signals.pop("derivatives")
+    signals, held = ({k: v.to(device) for k, v in d.items() if k != "derivatives"} if d is not None else None
+                     for d in (signals, held))
+    info = {"band_edge": band / dt, "band_edges": {k: v / dt for k, v in edges.items()}, "half_width_rule": rule,
+            "decimation": every, "derivative_cutoff": min(DERIVATIVE_MARGIN * band, 0.45) / dt,
+            "weak_form_signals": "measured (unsmoothed)" if not exact else "given (exact)", "derivatives": derivatives}
+    return Estimation(signals, held, half_width, every, info)

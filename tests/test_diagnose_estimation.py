@@ -1,0 +1,117 @@
+"""Estimation chosen from the record, verdicts that check themselves, the diagnose options on the
+command line (design.md section 3b)."""
+import json
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from msam_torch.cli import main
+from msam_torch.derivatives import BAND
+from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
+from msam_torch.diagnose.estimation import HALF_AMPLITUDE, band_edge
+from msam_torch.diagnose.verdict import equation_verdict, free_run_reasons
+from msam_torch.systems import WITHHELD
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
+from bench_diagnose import records  # noqa: E402  (the benchmark's records: one source of them)
+
+QUICK = DiagnoseOptions(bootstrap=0, steps=20, free_run=False)
+
+
+def test_band_edge_of_a_sine():
+    # the edge lies at the sine's frequency, up to the band averaging (BAND bins of 1/T) and the taper
+    dt = 0.01
+    rng = np.random.default_rng(0)
+    for n in (1000, 4000, 16000):
+        t = np.arange(n) * dt
+        sine = np.sin(2 * np.pi * 0.7 * t) + 0.01 * rng.standard_normal(n)
+        edge = band_edge(sine) / dt  # cycles per time unit
+        assert 0.7 - 1 / (n * dt) <= edge <= 0.7 + (BAND // 2 + 2) / (n * dt)  # + the Hann main lobe
+
+
+def test_same_verdict_and_exponent_on_a_record_ten_times_longer():
+    reports = []
+    for length in (1.0, 10.0):
+        w, (train, held_out) = records(length, 1)
+        reports.append(diagnose({"model": w.model, "data": {"parametric_error": 0.2, "seed": 1}}, data=train,
+                                validation=held_out, options=QUICK))
+    short, long = (r.equations[0] for r in reports)
+    assert short.verdict == long.verdict == "gap explained by Coulomb friction"
+    assert short.exponent == pytest.approx(-1.0, abs=0.06)
+    assert long.exponent == pytest.approx(short.exponent, abs=0.06)
+    # the test functions' width is set by the band, in time units
+    assert long.estimator["half_width"] == pytest.approx(short.estimator["half_width"], rel=0.25)
+    assert short.estimator["half_width"] == pytest.approx(HALF_AMPLITUDE / short.estimator["band_edge"], rel=0.05)
+
+
+def test_theta_of_a_null_case_from_unsmoothed_signals():
+    # 1 % noise on x only, x_dot estimated in band: the re-fitted start recovers -c/m and -k/m
+    w, (train, held_out) = records(1.0, 1, case="msd_linear")
+    report = diagnose({"model": w.model, "data": {"parametric_error": 0.2, "seed": 1}}, data=train,
+                      validation=held_out, options=QUICK)
+    assert report.verdict_kind is Verdict.NO_GAP
+    gap = report.equations[0]
+    assert gap.estimator["weak_form_signals"] == "measured (unsmoothed)"
+    terms = gap.retuned_equation.split("=")[1].replace("- ", "-").replace("+ ", "").split()
+    theta = dict(zip(terms[1::2], map(float, terms[0::2])))
+    assert theta["x_dot"] == pytest.approx(-0.5, rel=0.03) and theta["x"] == pytest.approx(-4.0, rel=0.03)
+
+
+def _free_run(start, retuned, adapted, diverged=(), converged=True):
+    return {"held_out": {"nrmse": {"start": start, "retuned": retuned, "adapted": adapted}, "diverged": list(diverged),
+                         "solver": {"method": "rk4", "step": 0.01, "converged": converged}}}
+
+
+def test_free_run_checks_make_a_verdict_inconclusive():
+    assert free_run_reasons(_free_run(0.5, 0.1, 0.05), Verdict.EXPLAINED) == []
+    worse = free_run_reasons(_free_run(0.2, 0.3, 0.1), Verdict.NO_GAP)
+    assert "worse than the nominal" in worse[0] and "--half-width" in worse[1]
+    diverged = free_run_reasons(_free_run(0.5, 0.1, None, diverged=["adapted"]), Verdict.EXPLAINED)
+    assert "adapted model's free run on held_out data diverged" in diverged[0]
+    # a diverged adapted model does not undo a verdict that does not rest on it
+    assert free_run_reasons(_free_run(0.5, 0.1, None, diverged=["adapted"]), Verdict.NO_GAP) == []
+    assert "did not converge" in free_run_reasons(_free_run(0.5, 0.1, 0.1, converged=False), Verdict.NO_GAP)[0]
+
+
+def test_no_gap_needs_a_residual_that_looks_like_noise():
+    clean = {"failed": []}
+    assert equation_verdict(False, False, float("nan"), 0.0, clean, DiagnoseOptions()) == (Verdict.NO_GAP, [])
+    kind, reasons = equation_verdict(False, False, float("nan"), 0.0, {"failed": ["autocorrelated"]}, DiagnoseOptions())
+    assert kind is Verdict.INCONCLUSIVE and reasons[0] == "autocorrelated" and "candidate" in reasons[1]
+
+
+def test_a_gap_the_candidates_cannot_express_is_not_called_no_gap():
+    # the input dead zone leaves a residual correlated with the input: never "no significant gap"
+    w, (train, held_out) = records(4.0, 1, case="msd_input_dead_zone")  # long enough to check the residual
+    report = diagnose({"model": w.model, "data": {"parametric_error": 0.2, "seed": 1}}, data=train,
+                      validation=held_out, options=QUICK)
+    assert report.verdict_kind is not Verdict.NO_GAP
+
+
+def test_cli_takes_the_diagnose_options(tmp_path, capsys):
+    w, (train, held_out) = records(1.0, 1, case="msd_quadratic_drag")
+    for data, file in ((train, "train.csv"), (held_out, "held.csv")):
+        pd.DataFrame({"time": data.t.numpy(), "pos": data.measured["x"].numpy(),
+                      "force": data.measured["u"].numpy()}).to_csv(tmp_path / file, index=False)
+    config = {"model": w.model, "data": {"time": "time", "columns": {"x": "pos", "u": "force"}, "file": "train.csv",
+                                         "validation_file": "held.csv"}}
+    (tmp_path / "c.yaml").write_text(json.dumps(config))
+    code = main(["diagnose", str(tmp_path / "c.yaml"), "--out", str(tmp_path / "out"), "--half-width", "0.8",
+                 "--bootstrap", "3", "--seed", "5", "--solver", "midpoint", "--solver-step", "0.01", "--no-plots"])
+    assert code == 0
+    saved = json.loads((tmp_path / "out" / "gap_report.json").read_text())
+    assert saved["options"]["half_width"] == 0.8 and saved["options"]["bootstrap"] == 3 and saved["options"]["seed"] == 5
+    assert saved["measures"]["free_run"]["held_out"]["solver"] == {"method": "midpoint", "step": 0.01, "converged": True}
+    assert saved["equations"][0]["estimator"]["half_width"] == pytest.approx(0.8, rel=0.05)
+    assert saved["equations"][0]["confidence"]["bootstrap_trials"] == 3
+    assert not list((tmp_path / "out").glob("*.png"))
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_:
+        main(["diagnose", str(tmp_path / "c.yaml"), "--half-width", "-1"])
+    assert exit_.value.code == 2 and "--half-width" in capsys.readouterr().err
+    assert main(["diagnose", str(tmp_path / "c.yaml"), "--out", str(tmp_path / "o2"), "--solver", "nope"]) == 2
+    assert "solver" in capsys.readouterr().err
