@@ -56,14 +56,14 @@ def test_naive_configs_hold_only_the_starting_physics(name):
 
 
 def test_naive_emps_diagnosis_runs_on_a_slice():
-    """Today: Coulomb friction named on the first 10 s of the estimation record, held out on the
-    validation pulses, but with a margin well below 1 % to an uncatalogued power law."""
+    """Coulomb friction named on the first 10 s of the estimation record, held out on the
+    validation pulses (estimation chosen from the record: 60 % held-out improvement, margin 4 %)."""
     report = diagnose(CONFIGS / "emps_naive.yaml", overrides=["data.train.stop=10"],
                       options=DiagnoseOptions(bootstrap=4, free_run=False))
     (gap,) = report.equations
-    assert gap.effect == "Coulomb friction" and gap.exponent == pytest.approx(-0.960, abs=0.02)
-    assert gap.improvement["relative"] == pytest.approx(0.343, abs=0.03)
-    assert gap.confidence["margin"] < 0.01
+    assert gap.effect == "Coulomb friction" and gap.exponent == pytest.approx(-1.118, abs=0.03)
+    assert gap.improvement["relative"] == pytest.approx(0.604, abs=0.03)
+    assert gap.confidence["margin"] > 0.02
 
 
 def test_naive_silverbox_run_keeps_the_nominal_theta_by_default():

@@ -10,6 +10,7 @@ import torch
 from ..errors import MSAMError
 from ..simulation import EquationModel, simulate_equations as simulate
 from ..simulation.solver import TABLEAUS
+from torchdiffeq._impl.odeint import SOLVERS  # the method names odeint accepts (no public list)
 from ..spec import Equation, ModelSpec
 from . import measures
 from .bootstrap import Bootstrap
