@@ -106,6 +106,13 @@ class RunResult:
     def __str__(self) -> str:
         return "\n".join(e.equation for e in self.equations)
 
+    def model(self, stage: str = "adapted", dtype=torch.float64):
+        """The state equations of ``stage`` (``start``, ``retuned``, ``adapted``, ``adapted_tuned``)
+        as an ``nn.Module`` ``f(t, x)`` (:class:`~msam_torch.model.StateModel`)."""
+        from .model import StateModel  # the simulation package imports this module at load time
+
+        return StateModel.from_result(self, stage, dtype)
+
     def to_dict(self) -> dict:
         return {"version": 1, "config": self.config, "data": self.data,
                 "equations": [e.to_dict() for e in self.equations]}
