@@ -46,11 +46,13 @@ def _run(args) -> int:
         trainer.add_callback("round_robin_step", lambda t, **p: bar.update(1))
         trainer.add_callback("refinement_step", lambda t, **p: bar.update(1))
         if tracker is not None:
-            tracker.attach(trainer, equation.target, lambda c: ", ".join(candidate_label(equation, c)))
+            tracker.attach(trainer, equation.target, lambda c: candidate_label(equation, c))
 
     try:
         with stop:
             result = adapt(config, on_trainer=on_trainer, base_dir=Path(args.config).parent)
+        if tracker is not None:
+            tracker.log_run(result.config, result)
     finally:
         for bar in bars:
             bar.close()
@@ -221,7 +223,7 @@ def _parse(argv) -> argparse.Namespace:
                               help="adapt the model of CONFIG to its data and print the adapted equations")
     run.add_argument("config", help="YAML config (see configs/)")
     run.add_argument("overrides", nargs="*", help="config overrides such as adaptation.step_size=one")
-    run.add_argument("--out", help="output folder (default runs/<config name>)")
+    run.add_argument("--out", help="output folder (default: a new runs/<config name>/version_N)")
     run.add_argument("--no-tensorboard", action="store_true", help="do not write TensorBoard event files")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument("--max-seconds", type=_seconds, help="stop the adaptation after this many seconds, keeping "
@@ -233,7 +235,7 @@ def _parse(argv) -> argparse.Namespace:
     diag.add_argument("overrides", nargs="*", help="config overrides such as data.noise=0.01")
     diag.add_argument("--data", help="measured CSV/Parquet file (default: the config's data)")
     diag.add_argument("--validate", help="held-out CSV/Parquet file, ideally from another excitation")
-    diag.add_argument("--out", help="output folder (default runs/<config name>_diagnosis)")
+    diag.add_argument("--out", help="output folder (default: a new runs/<config name>_diagnosis/version_N)")
     diag.add_argument("--threads", type=_positive_int, help="torch CPU threads (1 is fastest on a busy machine)")
     diag.set_defaults(handler=_diagnose, out_default="{stem}_diagnosis")
     args, extra = parser.parse_known_args(argv)  # overrides may follow options
@@ -242,7 +244,10 @@ def _parse(argv) -> argparse.Namespace:
         parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     if extra:
         args.overrides = list(getattr(args, "overrides", [])) + extra
-    args.out = str(args.out or Path("runs") / args.out_default.format(stem=Path(args.config).stem))
+    if args.out is None:  # a new folder per run: runs/<stem>/version_N
+        from .outputs import new_version
+
+        args.out = str(new_version(Path("runs") / args.out_default.format(stem=Path(args.config).stem)))
     return args
 
 
