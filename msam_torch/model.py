@@ -34,21 +34,23 @@ class Stage:
     theta: tuple[list, ...]
 
 
-def result_stage(spec: ModelSpec, equations: list, nominal: dict, stage: str) -> Stage:
-    """``stage`` of a run's :class:`~msam_torch.result.EquationResult` list: ``start`` (nominal
-    theta), ``retuned`` (starting structure, theta re-estimated), ``adapted``, ``adapted_tuned``
-    (adapted structure, theta re-estimated)."""
+def result_stage(spec: ModelSpec, equations: list, data: dict, stage: str) -> Stage:
+    """``stage`` of a run's :class:`~msam_torch.result.EquationResult` list (``data``: the run's
+    provenance): ``start`` (nominal theta), ``retuned`` (starting structure, theta re-estimated),
+    ``adapted``, ``adapted_tuned`` (adapted structure, theta re-estimated; one-step runs)."""
     if stage not in STAGES:
         raise ConfigError("stage", f"unknown stage {stage!r} (choose from {', '.join(STAGES)})")
-    none = lambda e: [None] * len(e.theta)
+    none = tuple([None] * len(e.theta) for e in equations)
     if stage == "start":
-        thetas = [spec.theta(eq, nominal).tolist() for eq in spec.equations]
-        return Stage(tuple(none(e) for e in equations), tuple(none(e) for e in equations), tuple(thetas))
+        nominal = data.get("nominal_parameters", spec.parameters)
+        return Stage(none, none, tuple(spec.theta(eq, nominal).tolist() for eq in spec.equations))
+    simulated = {t: th for group in data.get("simulation", []) for t, th in group.get("retuned_theta", {}).items()}
+    if stage == "retuned" and all(e.target in simulated for e in equations):
+        return Stage(none, none, tuple(simulated[e.target] for e in equations))
     if stage in ("retuned", "adapted_tuned") and not all(e.theta_tuning for e in equations):
-        raise ConfigError("stage", f"stage {stage!r} needs theta re-estimated (adaptation judged on one-step rates)")
+        raise ConfigError("stage", f"this run has no stage {stage!r} (theta was not re-estimated)")
     if stage == "retuned":
-        return Stage(tuple(none(e) for e in equations), tuple(none(e) for e in equations),
-                     tuple(e.theta_tuning["start"]["theta"] for e in equations))
+        return Stage(none, none, tuple(e.theta_tuning["start"]["theta"] for e in equations))
     theta = [e.theta_tuning["final"]["theta"] if stage == "adapted_tuned" else e.theta for e in equations]
     return Stage(tuple(e.adjustments for e in equations), tuple(e.exponents for e in equations), tuple(theta))
 
@@ -83,10 +85,9 @@ class StateModel(nn.Module):
         """The model of ``stage`` of a :class:`~msam_torch.result.RunResult`."""
         config = result.config if isinstance(result.config, Config) else load_config(result.config)
         spec = ModelSpec.from_config(config.model)
-        nominal = result.data.get("nominal_parameters", spec.parameters)
         sim = config.adaptation.simulation
         limits = state_limits(config, build_model(spec, spec.equations).states, dtype)
-        return cls(spec, result_stage(spec, result.equations, nominal, stage), dtype, sim.input_hold, limits,
+        return cls(spec, result_stage(spec, result.equations, result.data, stage), dtype, sim.input_hold, limits,
                    sim.method, sim.substeps)
 
     @property

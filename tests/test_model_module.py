@@ -109,3 +109,15 @@ def test_torch_export_gives_the_same_rates(harmonic):
     t, x = torch.tensor(0.7, dtype=torch.float64), run.states[0, 300]
     exported = torch.export.export(model, (t, x)).module()
     assert torch.allclose(exported(t, x), model(t, x), rtol=1e-14, atol=0)
+
+
+def test_a_simulation_run_gives_its_stages():
+    result = adapt("configs/harmonic.yaml", ["adaptation.evaluation=simulation", "adaptation.simulation.output=[x]",
+                                             "adaptation.round_robin_steps=2", "adaptation.refinement_steps=2"])
+    retuned = result.data["simulation"][0]["retuned_theta"]["x_ddot"]
+    assert result.model("retuned").to_frame()["theta"].tolist() == pytest.approx(retuned, rel=1e-12)
+    adapted = result.model().to_frame()
+    assert adapted["theta"].tolist() == pytest.approx(result.equations[0].theta, rel=1e-12)
+    assert list(adapted["function"][:2]) == result.equations[0].adjustments[:2]
+    with pytest.raises(ConfigError, match="adapted_tuned"):
+        result.model("adapted_tuned")
