@@ -1,6 +1,7 @@
 """The adapted model as an ``nn.Module`` (msam_torch.model): free-run with torchdiffeq, the
 sympy form of the printed equation, tables, state_dict, dtype."""
 import copy
+import dataclasses
 import re
 
 import numpy as np
@@ -111,13 +112,14 @@ def test_torch_export_gives_the_same_rates(harmonic):
     assert torch.allclose(exported(t, x), model(t, x), rtol=1e-14, atol=0)
 
 
-def test_a_simulation_run_gives_its_stages():
-    result = adapt("configs/harmonic.yaml", ["adaptation.evaluation=simulation", "adaptation.simulation.output=[x]",
-                                             "adaptation.round_robin_steps=2", "adaptation.refinement_steps=2"])
-    retuned = result.data["simulation"][0]["retuned_theta"]["x_ddot"]
-    assert result.model("retuned").to_frame()["theta"].tolist() == pytest.approx(retuned, rel=1e-12)
-    adapted = result.model().to_frame()
-    assert adapted["theta"].tolist() == pytest.approx(result.equations[0].theta, rel=1e-12)
-    assert list(adapted["function"][:2]) == result.equations[0].adjustments[:2]
+def test_a_run_judged_by_simulation_gives_its_retuned_stage(harmonic):
+    """A simulation run records its retuned theta under data.simulation and has no theta_tuning."""
+    result, _ = harmonic
+    retuned = [-3.5, -12.0, 0.0025]
+    equations = [dataclasses.replace(e, theta_tuning={}) for e in result.equations]
+    simulated = dataclasses.replace(result, equations=equations, data={
+        **result.data, "simulation": [{"retuned_theta": {"x_ddot": retuned}}]})
+    assert simulated.model("retuned").to_frame()["theta"].tolist() == retuned
+    assert simulated.model().to_frame()["theta"].tolist() == pytest.approx(result.equations[0].theta, rel=1e-12)
     with pytest.raises(ConfigError, match="adapted_tuned"):
-        result.model("adapted_tuned")
+        simulated.model("adapted_tuned")
