@@ -41,7 +41,8 @@ from msam_torch.config import load_config
 from msam_torch.data import load_datasets
 from msam_torch.plan import make_trainer
 from msam_torch.plan import prepare
-from msam_torch.simulation import groups, prepare_group
+from msam_torch.simulation import groups
+from msam_torch.simulation.adapt import prepare_group
 from msam_torch.spec import ModelSpec
 
 CONFIGS = ROOT / "configs"

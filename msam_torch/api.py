@@ -12,7 +12,7 @@ from .config import Config, load_config
 from .data import DataArgument, resolve_datasets
 from .plan import Plan, make_trainer, prepare
 from .result import EquationResult, RunResult, format_component, format_equation
-from .simulation import adapt_simulation
+from .simulation.adapt import adapt_simulation
 from .spec import Equation, ModelSpec
 from .systems import perturb_parameters
 from .trainer import Algebraic, Fit, Trainer

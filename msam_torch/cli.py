@@ -21,14 +21,13 @@ from pathlib import Path
 from . import __version__
 from .allocator import keep_freed_memory
 from .errors import Interrupted, MSAMError, NoInformation
+from .progress import LOGGER, logging_to, step
 
 EXIT_BUG = 1
 EXIT_INTERRUPTED = 130
 
 
 def _run(args) -> int:
-    from tqdm.auto import tqdm
-
     from .api import adapt, candidate_label
     from .config import dump_config, load_config
     from .tracking import TensorBoardTracker
@@ -36,24 +35,24 @@ def _run(args) -> int:
     config = load_config(args.config, args.overrides)
     out = Path(args.out)
     tracker = None if args.no_tensorboard else TensorBoardTracker(out / "tensorboard")
-    bars = []
     stop = _Stop(args.max_seconds)
+    steps = config.adaptation.round_robin_steps + config.adaptation.refinement_steps
 
     def on_trainer(trainer, equation):
         stop.attach(trainer)
-        bar = tqdm(desc=equation.target, unit="step", disable=args.quiet or not sys.stderr.isatty(), leave=False)
-        bars.append(bar)
-        trainer.add_callback("round_robin_step", lambda t, **p: bar.update(1))
-        trainer.add_callback("refinement_step", lambda t, **p: bar.update(1))
+        count = lambda stage, p: step(LOGGER, equation.target, stage, p["iteration"] + 1 + (
+            config.adaptation.round_robin_steps if stage == "refinement" else 0), steps)
+        trainer.add_callback("round_robin_step", lambda t, **p: p["offset"] or count("round robin", p))
+        trainer.add_callback("refinement_step", lambda t, **p: count("refinement", p))
         if tracker is not None:
-            tracker.attach(trainer, equation.target, lambda c: ", ".join(candidate_label(equation, c)))
+            tracker.attach(trainer, equation.target, lambda c: candidate_label(equation, c))
 
     try:
         with stop:
             result = adapt(config, on_trainer=on_trainer, base_dir=Path(args.config).parent)
+        if tracker is not None:
+            tracker.log_run(result.config, result)
     finally:
-        for bar in bars:
-            bar.close()
         if tracker is not None:
             tracker.close()
     if tracker is not None:
@@ -171,6 +170,7 @@ def _diagnose(args) -> int:
     report = diagnose(args.config, data=args.data, validation=args.validate, overrides=args.overrides,
                       options=diagnose_options(args))
     out = Path(args.out)
+    LOGGER.info("writing the report to %s", out)
     path = report.save(out, plots=not args.no_plots)
     print(report)
     print(f"wrote {path} and {out / 'report.md'}")
@@ -228,7 +228,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
     keep_freed_memory()
     try:
-        status = _dispatch(args)
+        with logging_to(sys.stderr, args.verbose - args.quiet):
+            status = _dispatch(args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's final flush
         return status
     except MSAMError as exc:
@@ -254,15 +255,16 @@ def _parse(argv) -> argparse.Namespace:
     parser = _Parser(prog="msam", description="Model Structure Adaptation Method (MSAM) with PyTorch.")
     parser.add_argument("--version", action="version", version=f"msam-torch {__version__}")
     common = _Parser(add_help=False)
-    common.add_argument("-v", "--verbose", action="store_true", help="print the traceback of an internal error")
+    common.add_argument("-v", "--verbose", action="count", default=0,
+                        help="log everything and print the traceback of an internal error")
+    common.add_argument("-q", "--quiet", action="count", default=0, help="no progress, warnings and errors only")
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("run", parents=[common],
                               help="adapt the model of CONFIG to its data and print the adapted equations")
     run.add_argument("config", help="YAML config (see configs/)")
     run.add_argument("overrides", nargs="*", help="config overrides such as adaptation.step_size=one")
-    run.add_argument("--out", help="output folder (default runs/<config name>)")
+    run.add_argument("--out", help="output folder (default: a new runs/<config name>/version_N)")
     run.add_argument("--no-tensorboard", action="store_true", help="do not write TensorBoard event files")
-    run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument("--max-seconds", type=_seconds, help="stop the adaptation after this many seconds, keeping "
                                                             "the best state found (result.json records it)")
     run.set_defaults(handler=_run, out_default="{stem}")
@@ -272,7 +274,7 @@ def _parse(argv) -> argparse.Namespace:
     diag.add_argument("overrides", nargs="*", help="config overrides such as data.noise=0.01")
     diag.add_argument("--data", help="measured CSV/Parquet file (default: the config's data)")
     diag.add_argument("--validate", help="held-out CSV/Parquet file, ideally from another excitation")
-    diag.add_argument("--out", help="output folder (default runs/<config name>_diagnosis)")
+    diag.add_argument("--out", help="output folder (default: a new runs/<config name>_diagnosis/version_N)")
     diag.add_argument("--threads", type=_positive(int), help="torch CPU threads (1 is fastest on a busy machine)")
     for flag, field, keywords in DIAGNOSE_OPTIONS:
         diag.add_argument(flag, dest=field, **keywords)
@@ -285,7 +287,10 @@ def _parse(argv) -> argparse.Namespace:
         parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     if extra:
         args.overrides = list(getattr(args, "overrides", [])) + extra
-    args.out = str(args.out or Path("runs") / args.out_default.format(stem=Path(args.config).stem))
+    if args.out is None:  # a new folder per run: runs/<stem>/version_N
+        from .outputs import new_version
+
+        args.out = str(new_version(Path("runs") / args.out_default.format(stem=Path(args.config).stem)))
     return args
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import re
 import shutil
 import tempfile
 from contextlib import contextmanager
@@ -109,6 +110,15 @@ def one_set(out: str | Path) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(stage, ignore_errors=True)
         raise
+
+
+def new_version(parent: str | Path) -> Path:
+    """``parent/version_N`` with N one past the highest there (written or being written), so
+    runs without ``--out`` never share a folder (like Lightning's ``version_N``)."""
+    parent = Path(parent)
+    taken = [int(m.group(1)) for p in (parent.iterdir() if parent.is_dir() else ())
+             if (m := re.fullmatch(r"\.?version_(\d+)(?:\.lock)?", p.name))]
+    return parent / f"version_{max(taken, default=-1) + 1}"
 
 
 def _umask() -> int:

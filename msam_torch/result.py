@@ -14,6 +14,7 @@ from pathlib import Path
 import torch
 
 from .candidates import FLOOR
+from .model import StateModel
 from .outputs import write_atomic
 from .spec import Equation
 
@@ -105,6 +106,11 @@ class RunResult:
 
     def __str__(self) -> str:
         return "\n".join(e.equation for e in self.equations)
+
+    def model(self, stage: str = "adapted", dtype=torch.float64):
+        """The state equations of ``stage`` (``start``, ``retuned``, ``adapted``, ``adapted_tuned``)
+        as an ``nn.Module`` ``f(t, x)`` (:class:`~msam_torch.model.StateModel`)."""
+        return StateModel.from_result(self, stage, dtype)
 
     def to_dict(self) -> dict:
         return {"version": 1, "config": self.config, "data": self.data,

@@ -31,7 +31,7 @@ def wait_for(path: Path, process: subprocess.Popen, limit: float = 120) -> None:
 
 def test_a_second_run_refuses_and_ctrl_c_stops_the_first_keeping_its_best_state(tmp_path):
     out = tmp_path / "out"
-    first = msam("run", HARMONIC, "--out", str(out), "adaptation.round_robin_steps=100000", cwd=tmp_path)
+    first = msam("run", HARMONIC, "-q", "--out", str(out), "adaptation.round_robin_steps=100000", cwd=tmp_path)
     try:
         wait_for(out / "tensorboard", first)  # running, past start-up, holding the folder's lock
         second = subprocess.run([sys.executable, "-m", "msam_torch", "run", HARMONIC, "--out", str(out),
@@ -52,7 +52,7 @@ def test_a_second_run_refuses_and_ctrl_c_stops_the_first_keeping_its_best_state(
 
 def test_a_closed_stdout_ends_quietly_with_the_files_written(tmp_path):
     out = tmp_path / "out"
-    done = subprocess.run(f"{sys.executable} -m msam_torch diagnose {HARMONIC} --out {out} | true; "
+    done = subprocess.run(f"{sys.executable} -m msam_torch diagnose -q {HARMONIC} --out {out} | true; "
                           "exit ${PIPESTATUS[0]}", shell=True, executable="/bin/bash", env=ENV, text=True,
                           capture_output=True, timeout=300)
     assert done.returncode == 0 and done.stderr == "", done.stderr

@@ -11,7 +11,8 @@ from msam_torch.candidates import equation_choices
 from msam_torch.config import load_config
 from msam_torch.errors import ConfigError
 from msam_torch.plan import prepare
-from msam_torch.simulation import build_model, prepare_group
+from msam_torch.simulation import build_model
+from msam_torch.simulation.adapt import prepare_group
 from msam_torch.spec import ModelSpec
 
 from tests.test_simulation_mode import TANKS

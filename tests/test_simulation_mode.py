@@ -13,7 +13,8 @@ from msam_torch.api import adapt, nominal_parameters
 from msam_torch.config import load_config
 from msam_torch.errors import ConfigError
 from msam_torch.plan import prepare
-from msam_torch.simulation import Parameters, build_model, load_records, output_states, prepare_group, simulate
+from msam_torch.simulation import Parameters, build_model, load_records, output_states, simulate
+from msam_torch.simulation.adapt import prepare_group
 from msam_torch.spec import ModelSpec
 
 TANKS = {

@@ -375,7 +375,7 @@ def test_user_error(tmp_path, capsys, kind, name):
     built = build(tmp_path)
     config, more = built if isinstance(built, tuple) else (built, [])
     out = tmp_path / "out"
-    arguments = (["--no-tensorboard", *QUICK] if command == "run" else [])
+    arguments = (["--no-tensorboard", *QUICK] if command == "run" else []) + ["-q"]  # the error alone on stderr
     arguments += [a.replace("{tmp}", str(tmp_path)) for a in extra + more]
     if "--out" not in arguments:
         arguments += ["--out", str(out)]

@@ -18,6 +18,7 @@ from ..api import nominal_parameters
 from ..config import Config, load_config
 from ..data import DataArgument, resolve_datasets
 from ..plan import prepare
+from ..progress import LOGGER, step, tracked
 from ..trainer import Algebraic
 from .compare import check_solver, compare
 from .equation import diagnose_equation
@@ -49,6 +50,8 @@ def diagnose(config: Config | dict | str | Path, data: DataArgument = None, vali
     if not isinstance(plan.evaluator, Algebraic):  # judged by simulation
         return diagnose_simulated(plan, Path(base_dir), options, data=data, validation=validation)
     spec, device = plan.spec, plan.device
+    total = len(spec.equations) + 2  # reading the data, each equation, comparing the models
+    step(LOGGER, "diagnose", "reading the data", 0, total)
     train, held_out = resolve_datasets(config.data, spec, base_dir, plan.dtype, data, validation, plan.derivatives)
     train, held_out = (None if d is None else replace(d, signals={k: v.to(device) for k, v in d.signals.items()})
                        for d in (train, held_out))
@@ -58,9 +61,10 @@ def diagnose(config: Config | dict | str | Path, data: DataArgument = None, vali
     estimation = choose(spec, config.data, train, held_out, plan.derivatives, options.half_width,
                         options.quadrature_samples)
     equations = [diagnose_equation(spec, equation, train, estimation, parameters, options, generator)
-                 for equation in spec.equations]
+                 for equation in tracked(spec.equations, LOGGER, "diagnose", lambda e: f"equation {e.target}", total, 1)]
     gaps = tuple(e.gap for e in equations)
     series = {e.gap.target: e.series for e in equations}
+    step(LOGGER, "diagnose", "comparing the models", total - 1, total)
     gap_measures = compare(spec, [e.model for e in equations], train, held_out, series, options,
                            estimation.info["band_edge"])
     kind, verdict, reasons = overall(gaps, any(g.significant for g in gaps), name_targets=len(gaps) > 1,

@@ -22,6 +22,7 @@ import torch
 from ..api import adapt, nominal_parameters
 from ..derivatives import METHODS, Auto, DerivativeEstimator
 from ..plan import Plan
+from ..progress import LOGGER, step
 from ..result import EquationResult, adjusted_columns, format_component, format_equation
 from ..simulation import FreeRun, free_runs
 from ..spec import Equation, ModelSpec, split_derivative
@@ -42,6 +43,7 @@ def diagnose_simulated(plan: Plan, base_dir: Path, options, data=None, validatio
     started = time.perf_counter()
     spec = ModelSpec.from_config(config.model)
     parameters = nominal_parameters(config, spec)
+    step(LOGGER, "diagnose", "adapting by simulation", 0, 3)
     result = adapt(config, base_dir=base_dir, data=data, validation=validation)
     retuned_theta = {t: th for group in result.data["simulation"] for t, th in group["retuned_theta"].items()}
     unadjusted = lambda eq, theta: EquationResult(eq.target, "", "", [None] * len(eq.components),
@@ -49,12 +51,14 @@ def diagnose_simulated(plan: Plan, base_dir: Path, options, data=None, validatio
     models = {"start": [unadjusted(eq, spec.theta(eq, parameters).tolist()) for eq in spec.equations],
               "retuned": [unadjusted(eq, retuned_theta[eq.target]) for eq in spec.equations],
               "adapted": result.equations}
+    step(LOGGER, "diagnose", "free runs of the models", 1, 3)
     runs = free_runs(config, spec, models, base_dir, data=data, validation=validation)
     gap_measures = {"one_step": {}, "free_run": {RECORDS[k]: _free_run_measures(run) for k, run in runs.items()}}
     held_out = runs.get("validation", runs["train"])
     rmse = torch.sqrt(((held_out.simulated - held_out.record.outputs) ** 2).mean((-1, -2)))  # start, retuned, adapted
     target_rms = float(torch.sqrt((held_out.record.outputs**2).mean()))
     significant = bool(confidence.significant(rmse[2], rmse[1], target_rms, options.relative, options.absolute))
+    step(LOGGER, "diagnose", "locating the remaining gap", 2, 3)
     series, gaps = {}, []
     for e, (eq, adapted) in enumerate(zip(spec.equations, result.equations)):
         where = _remaining_gap(plan, eq, adapted, runs["train"])
