@@ -50,8 +50,10 @@ class ProgressHandler(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         try:
-            if getattr(record, "task", None) is None:
-                self._write(f"{record.levelname.lower()}: {record.getMessage()}")
+            if getattr(record, "task", None) is None:  # a plain message: the stage it follows has ended
+                with self.lock:
+                    self.task = None
+                    self._write(f"{record.levelname.lower()}: {record.getMessage()}")
                 return
             with self.lock:
                 self._progress(record.task, record.getMessage(), record.done, record.total)
