@@ -93,8 +93,9 @@ def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retu
     adapted models (the group's, shared by its equations)."""
     index = [i for i, a in enumerate(adapted.adjustments) if a is not None]
     texts = [f.text for f in eq.adjustments]
+    spec = ModelSpec.from_config(config.model)
     names = {i: catalogue.name_effect(eq, i, texts.index(adapted.adjustments[i]), adapted.exponents[i],
-                                      adapted.theta[i], start_theta[i]) for i in index}
+                                      adapted.theta[i], start_theta[i], spec) for i in index}
     known = [i for i in index if names[i] != catalogue.NOT_CATALOGUED]
     shown = known[0] if known else (index[0] if index else None)
     effect = names[shown] if significant and shown is not None else None
