@@ -113,21 +113,24 @@ def match(catalogue: tuple[EffectConfig, ...], reading: Reading, total: float, h
           same_sign: bool) -> EffectConfig | None:
     """The entry a total exponent ``total`` +- ``half_width`` names, or None.
 
-    Among entries whose quantities fit: a single-valued exponent must lie inside the interval (the
-    one nearest ``total`` when several do; two at the same distance name nothing); a range must
-    hold ``total`` itself. Single values come first: a power law whose interval holds 2 on a speed
-    is quadratic drag even though 2 is also a power-law exponent."""
+    Among entries whose quantities fit, those the fit is consistent with: a single-valued exponent
+    inside the interval, a range holding ``total`` itself. The nearest one names it (a range that
+    holds ``total`` is at distance 0); two at the same distance name nothing."""
     if reading.power is None or None in (reading.acts_on, reading.term, reading.depends_on):
         return None
     fits = [e for e in catalogue if reading.acts_on in e.acts_on and reading.term in e.term
             and reading.depends_on in e.depends_on and e.sign in ("any", "same" if same_sign else "opposite")]
-    points = [e for e in fits if not isinstance(e.exponent, tuple) and abs(e.exponent - total) <= half_width]
-    if points:
-        points.sort(key=lambda e: abs(e.exponent - total))
-        tied = len(points) > 1 and abs(points[1].exponent - total) == abs(points[0].exponent - total)
-        return None if tied else points[0]
-    ranges = [e for e in fits if isinstance(e.exponent, tuple) and e.exponent[0] <= total <= e.exponent[1]]
-    return ranges[0] if len(ranges) == 1 else None
+    distance = {}
+    for e in fits:
+        if isinstance(e.exponent, tuple):
+            if e.exponent[0] <= total <= e.exponent[1]:
+                distance[e.name] = (0.0, e)
+        elif abs(e.exponent - total) <= half_width:
+            distance[e.name] = (abs(e.exponent - total), e)
+    ranked = sorted(distance.values(), key=lambda d: d[0])
+    if not ranked or (len(ranked) > 1 and ranked[1][0] == ranked[0][0]):
+        return None
+    return ranked[0][1]
 
 
 def effect_entry(equation: Equation, component: int, function: int, gamma: float, theta: float,
