@@ -117,10 +117,11 @@ def match(catalogue: tuple[EffectConfig, ...], reading: Reading, total: float, h
     inside the interval, a range holding ``total`` itself. The nearest one names it (a range that
     holds ``total`` is at distance 0); two at the same distance name nothing. An effect whose
     component and dependency are the same quantity acts through one signal: ``s`` must be ``M``
-    (``h1 |h2|^0.5`` is no outflow law of either level)."""
+    (``h1 |h2|^0.5`` is no outflow law of either level). A fit whose interval holds ``gamma = 0``
+    (the component's own law, unchanged) names nothing."""
     if reading.power is None or None in (reading.acts_on, reading.term, reading.depends_on):
         return None
-    if reading.term == reading.depends_on and reading.power != 1.0:
+    if (reading.term == reading.depends_on and reading.power != 1.0) or abs(total - reading.power) <= half_width:
         return None
     fits = [e for e in catalogue if reading.acts_on in e.acts_on and reading.term in e.term
             and reading.depends_on in e.depends_on and e.sign in ("any", "same" if same_sign else "opposite")]
