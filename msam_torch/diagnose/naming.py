@@ -3,7 +3,8 @@
 
 Each effect hypothesis's *total exponent* on its signal (``gamma`` plus the power of the signal in
 its component: ``c v|v|^-0.3`` is 0.7 on ``v``) gets an interval from the bootstrap trials
-(:mod:`.bootstrap`): the original fit +- two standard deviations of the trials' exponents, and
+(:mod:`.bootstrap`): the original fit +- two robust standard deviations (1.4826 median absolute
+deviations, so that a trial falling into another optimum does not widen it) of the trials' exponents, and
 never narrower than the catalogue's resolution +-0.2 (the trials see noise and time blocks, not
 the bias of the weak-form estimate or of a smoothed law). An entry names it only when that interval holds the
 catalogue's exponent (:func:`.catalogue.match`); nothing is moved into an interval. A hypothesis
@@ -25,6 +26,7 @@ from .verdict import Verdict
 
 STABLE_HALF_WIDTH = 1.0  # an exponent known no better than +-1 is not an effect
 SPREAD = 2.0  # interval half-width in standard deviations of the trials' exponents
+MAD_TO_STD = 1.4826  # median absolute deviation -> standard deviation of a normal distribution
 
 
 @dataclass(frozen=True)
@@ -41,14 +43,16 @@ class Naming:
 
 
 def half_width(boot: Bootstrap | None, c: int, s: int) -> float:
-    """Two standard deviations of hypothesis ``c``'s exponent in slot ``s`` over the trials that
+    """Two robust standard deviations of hypothesis ``c``'s exponent in slot ``s`` over the trials that
     re-fitted it, at least the catalogue's tolerance (inf when fewer than half did)."""
     if boot is None:
         return catalogue.TOLERANCE
     valid = ~boot.fitted.invalid[:, c] & torch.isfinite(boot.rmse[:, c])
     if 2 * int(valid.sum()) < valid.numel() or int(valid.sum()) < 2:
         return float("inf")
-    return max(SPREAD * float(boot.fitted.gamma[valid, c, s].std()), catalogue.TOLERANCE)
+    g = boot.fitted.gamma[valid, c, s]
+    robust_std = MAD_TO_STD * float((g - g.median()).abs().median())
+    return max(SPREAD * robust_std, catalogue.TOLERANCE)
 
 
 def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypothesis], original: Fitted,
