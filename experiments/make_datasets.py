@@ -21,6 +21,8 @@ SILVERBOX_FS = 1e7 / 2**14  # Hz
 SILVERBOX_SLICES = {  # file -> (first row, stop row) of SNLS80mV.csv, 0-based, stop exclusive
     "multisine.csv.gz": (40_600, 58_000),  # the first two odd-multisine realisations (estimation part)
     "arrow_tail.csv.gz": (30_000, 40_500),  # high-amplitude end of the filtered-noise "arrow" (test part)
+    "train_multisine.csv.gz": (40_650, 105_712),  # nonlinear-benchmarks Silverbox(): training split
+    "test_arrow.csv.gz": (100, 40_575),  # nonlinear-benchmarks Silverbox(): test_arrow_full
 }
 
 

@@ -24,7 +24,7 @@ from msam_torch.config import load_config
 from msam_torch.data import load_datasets
 from msam_torch.diagnose.catalogue import effect_entry
 from msam_torch.result import EquationResult, adjusted_columns
-from msam_torch.simulation_mode import free_run_models
+from msam_torch.simulation import free_run_models
 from msam_torch.spec import ModelSpec
 from msam_torch.step import lstsq
 
@@ -72,7 +72,7 @@ def rival(equation, eq, starting: torch.Tensor) -> tuple[int, dict] | None:
     base = lambda names: {name.replace("hardening ", "").replace("softening ", "") for name in names}
     laws = lambda entry: base(name for _, name, _ in named_laws(equation, entry, starting))
     winner = laws(eq)
-    for rank, row in enumerate(eq.ranking):
+    for rank, row in enumerate(eq.ranking[1:], start=1):  # rank 0 is the winner itself
         adjustments, exponents = [None] * len(equation.components), [None] * len(equation.components)
         for k, i in enumerate(equation.adjustable):  # ranking rows list the adjustable components only
             adjustments[i], exponents[i] = row["adjustments"][k], row["exponents"][k]
@@ -117,8 +117,11 @@ def run(case: str) -> None:
     for eq in result.equations:
         print(f"  start:   {eq.start_equation}")
         print(f"  adapted: {eq.equation}")
-        print(f"  winner {eq.ranking[0]['adjustments']}, runner-up {eq.ranking[1]['adjustments']} "
-              f"(fitness {eq.ranking[0]['fitness']:.4g} vs {eq.ranking[1]['fitness']:.4g})")
+        if len(eq.ranking) > 1:
+            print(f"  winner {eq.ranking[0]['adjustments']}, runner-up {eq.ranking[1]['adjustments']} "
+                  f"(fitness {eq.ranking[0]['fitness']:.4g} vs {eq.ranking[1]['fitness']:.4g})")
+        else:  # a single candidate (every component restricted to one adjustment): nothing to rank
+            print(f"  single candidate {eq.ranking[0]['adjustments']} (fitness {eq.ranking[0]['fitness']:.4g})")
         equation = spec.equations[[e.target for e in spec.equations].index(eq.target)]
         named = [name for _, name, _ in named_laws(equation, eq, spec.theta(equation))]
         other = rival(equation, eq, spec.theta(equation))

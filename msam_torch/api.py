@@ -11,8 +11,8 @@ from .candidates import EquationData, equation_choices
 from .config import Config, load_config
 from .data import DataArgument, resolve_datasets
 from .plan import Plan, make_trainer, prepare
-from .plan import step_options  # noqa: F401  (read from here by msam_torch.simulation_mode)
 from .result import EquationResult, RunResult, format_component, format_equation
+from .simulation import adapt_simulation
 from .spec import Equation, ModelSpec
 from .systems import perturb_parameters
 from .trainer import Algebraic, Fit, Trainer
@@ -48,9 +48,8 @@ def adapt(config: Config | dict | str, overrides: list[str] = (),
     plan = prepare(config, in_memory=data is not None, **strategies)
     config, spec, dtype, device = plan.config, plan.spec, plan.dtype, plan.device
     if not isinstance(plan.evaluator, Algebraic):  # judged by simulation
-        from .simulation_mode import adapt_simulation
-
-        return adapt_simulation(config, spec, nominal_parameters(config, spec), Path(base_dir), on_trainer)
+        return adapt_simulation(plan, nominal_parameters(config, spec), Path(base_dir), trainer_factory or make_trainer,
+                                on_trainer, data, validation)
     train, held_out = resolve_datasets(config.data, spec, base_dir, dtype, data, validation, plan.derivatives)
     signals = {k: v.to(device) for k, v in train.signals.items()}
     provenance = train.info if held_out is None else {**train.info, "validation": held_out.info}

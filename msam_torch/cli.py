@@ -1,21 +1,29 @@
 """Command line: ``msam run CONFIG [--out DIR] [key=value ...]`` and
 ``msam diagnose CONFIG [--data FILE] [--validate FILE] [--out DIR] [key=value ...]``.
 
-Errors in the user's input print one line naming the place (key, file, column, row) and exit
-with status 2, without a traceback. Nothing is written unless the run succeeds.
+Errors in the user's input print one line naming the place (key, file, column, row, option) and
+exit with status 2, without a traceback; a run that learnt nothing exits with 3 (its result
+written and saying so); a bug prints one line and where its traceback is, and exits with 1;
+Ctrl-C exits with 130. The output folder is checked and locked before the run; a failed run
+leaves nothing behind, and a diagnosis replaces its files as one set.
 """
 from __future__ import annotations
 
 import argparse
 import logging
+import os
+import shutil
 import sys
+import tempfile
+import traceback
 from pathlib import Path
 
 from . import __version__
 from .allocator import keep_freed_memory
-from .errors import MSAMError
+from .errors import Interrupted, MSAMError, NoInformation
 
-EXIT_INPUT_ERROR = 2
+EXIT_BUG = 1
+EXIT_INTERRUPTED = 130
 
 
 def _run(args) -> int:
@@ -26,11 +34,13 @@ def _run(args) -> int:
     from .tracking import TensorBoardTracker
 
     config = load_config(args.config, args.overrides)
-    out = Path(args.out or Path("runs") / Path(args.config).stem)
+    out = Path(args.out)
     tracker = None if args.no_tensorboard else TensorBoardTracker(out / "tensorboard")
     bars = []
+    stop = _Stop(args.max_seconds)
 
     def on_trainer(trainer, equation):
+        stop.attach(trainer)
         bar = tqdm(desc=equation.target, unit="step", disable=args.quiet or not sys.stderr.isatty(), leave=False)
         bars.append(bar)
         trainer.add_callback("round_robin_step", lambda t, **p: bar.update(1))
@@ -39,7 +49,8 @@ def _run(args) -> int:
             tracker.attach(trainer, equation.target, lambda c: ", ".join(candidate_label(equation, c)))
 
     try:
-        result = adapt(config, on_trainer=on_trainer, base_dir=Path(args.config).parent)
+        with stop:
+            result = adapt(config, on_trainer=on_trainer, base_dir=Path(args.config).parent)
     finally:
         for bar in bars:
             bar.close()
@@ -47,7 +58,9 @@ def _run(args) -> int:
             tracker.close()
     if tracker is not None:
         tracker.save_config(dump_config(config))
+    result = stop.record(result)
     path = result.save(out / "result.json")
+    _require_information(result, path)
     for eq in result.equations:
         print(f"starting: {eq.start_equation}")
         print(f"adapted:  {eq.equation}")
@@ -67,7 +80,85 @@ def _run(args) -> int:
             print(f"free-run RMSE of {', '.join(group['outputs'])} on the {record} record: "
                   + " -> ".join(f"{', '.join(f'{v:.4g}' for v in rows[label])} ({label})" for label in rows))
     print(f"wrote {path}")
+    if stop.interrupted:
+        raise Interrupted(f"interrupted (Ctrl-C): the best state found so far is in {path}")
     return 0
+
+
+class _Stop:
+    """Ends the adaptation early, keeping the best state found (Algorithm 1 cut short): after
+    ``--max-seconds``, or at the first Ctrl-C while it runs (a second one aborts). The trainers stop
+    at their next step; the result records why."""
+
+    def __init__(self, seconds: float | None):
+        import time
+
+        self.clock, self.seconds = time.monotonic, seconds
+        self.end = None if seconds is None else time.monotonic() + seconds
+        self.trainers, self.interrupted, self.timed_out = [], False, False
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        self.previous = None
+        if threading.current_thread() is not threading.main_thread():  # only the main thread handles signals
+            return self
+
+        def first_interrupt(signum, frame):
+            self.interrupted = True
+            signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C aborts
+            for trainer in self.trainers:
+                trainer.stop_requested = True
+
+        self.previous = signal.signal(signal.SIGINT, first_interrupt)
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)
+
+    def attach(self, trainer) -> None:
+        self.trainers.append(trainer)
+        self._check(trainer)
+        trainer.add_callback("round_robin_step", lambda t, **p: self._check(t))
+        trainer.add_callback("refinement_step", lambda t, **p: self._check(t))
+
+    def _check(self, trainer) -> None:
+        self.timed_out |= self.end is not None and self.clock() >= self.end
+        trainer.stop_requested = self.interrupted or self.timed_out
+
+    def record(self, result):
+        if not (self.interrupted or self.timed_out):
+            return result
+        from dataclasses import replace
+
+        why = {"interrupted": True} if self.interrupted else {"max_seconds": self.seconds}
+        if self.timed_out and not self.interrupted:
+            print(f"stopped after --max-seconds {self.seconds:g}: the best state found so far is reported", file=sys.stderr)
+        return replace(result, data={**result.data, "stopped": why})
+
+
+def _require_information(result, path: Path) -> None:
+    """A run whose every candidate diverged, or whose fitted values are not finite, learnt nothing:
+    no equation is printed; ``path`` (written) records it."""
+    import math
+
+    for eq in result.equations:
+        if eq.ranking and all(c["diverged"] for c in eq.ranking):
+            raise NoInformation(f"{eq.target}: every one of the {len(eq.ranking)} candidates diverged "
+                                f"(|gamma| beyond adaptation.gamma_limit or a non-finite fitness); {path} records it")
+        values = [*eq.theta, *(g for g in eq.exponents if g is not None), *eq.final.values()]
+        if not all(math.isfinite(v) for v in values):
+            raise NoInformation(f"{eq.target}: the fitted theta, exponents or measures are not finite "
+                                f"(check model.parameters and data.parametric_error); {path} records it")
+    for group in result.data.get("simulation", []):
+        for record, rows in group["free_run_rmse"].items():
+            if not all(math.isfinite(v) for label, row in rows.items() if label != "start" for v in row):
+                raise NoInformation(f"the free run of the adapted {', '.join(group['outputs'])} on the {record} "
+                                    f"record is not finite; {path} records it")
 
 
 def _diagnose(args) -> int:
@@ -78,7 +169,7 @@ def _diagnose(args) -> int:
 
         torch.set_num_threads(args.threads)
     report = diagnose(args.config, data=args.data, validation=args.validate, overrides=args.overrides)
-    out = Path(args.out or Path("runs") / f"{Path(args.config).stem}_diagnosis")
+    out = Path(args.out)
     path = report.save(out)
     print(report)
     print(f"wrote {path} and {out / 'report.md'}")
@@ -86,38 +177,148 @@ def _diagnose(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="msam", description="Model Structure Adaptation Method (MSAM) with PyTorch.")
+    """Parse ``argv``, run the command, and turn every way it can end into an exit status: 0 done;
+    2 bad input (one line naming the place); 3 a run that learnt nothing (its result records it);
+    1 a bug (one line and where its traceback is); 130 interrupted. A closed stdout ends quietly."""
+    try:
+        args = _parse(argv)
+    except SystemExit as exc:  # --help, --version
+        return exc.code or 0
+    except MSAMError as exc:
+        return _report(exc)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
+    keep_freed_memory()
+    try:
+        status = _dispatch(args)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's final flush
+        return status
+    except MSAMError as exc:
+        return _report(exc)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:  # stdout closed early (| head): the files are written; say nothing more
+        _silence_stdout()
+        return 0
+    except Exception as exc:
+        return _internal_error(exc, args.verbose)
+
+
+class _Parser(argparse.ArgumentParser):
+    """Usage errors as one line naming the option, exit status 2."""
+
+    def error(self, message):
+        raise MSAMError(f"{self.prog}: {message}")
+
+
+def _parse(argv) -> argparse.Namespace:
+    parser = _Parser(prog="msam", description="Model Structure Adaptation Method (MSAM) with PyTorch.")
     parser.add_argument("--version", action="version", version=f"msam-torch {__version__}")
+    common = _Parser(add_help=False)
+    common.add_argument("-v", "--verbose", action="store_true", help="print the traceback of an internal error")
     commands = parser.add_subparsers(dest="command", required=True)
-    run = commands.add_parser("run", help="adapt the model of CONFIG to its data and print the adapted equations")
+    run = commands.add_parser("run", parents=[common],
+                              help="adapt the model of CONFIG to its data and print the adapted equations")
     run.add_argument("config", help="YAML config (see configs/)")
     run.add_argument("overrides", nargs="*", help="config overrides such as adaptation.step_size=one")
     run.add_argument("--out", help="output folder (default runs/<config name>)")
     run.add_argument("--no-tensorboard", action="store_true", help="do not write TensorBoard event files")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
-    run.set_defaults(handler=_run)
-    diag = commands.add_parser("diagnose", help="say where the starting model of CONFIG misses its data, which "
-                               "unmodelled effect causes it and how far adding it shrinks the gap")
+    run.add_argument("--max-seconds", type=_seconds, help="stop the adaptation after this many seconds, keeping "
+                                                            "the best state found (result.json records it)")
+    run.set_defaults(handler=_run, out_default="{stem}")
+    diag = commands.add_parser("diagnose", parents=[common], help="say where the starting model of CONFIG misses "
+                               "its data, which unmodelled effect causes it and how far adding it shrinks the gap")
     diag.add_argument("config", help="YAML config (its 'model' is the starting model)")
     diag.add_argument("overrides", nargs="*", help="config overrides such as data.noise=0.01")
     diag.add_argument("--data", help="measured CSV/Parquet file (default: the config's data)")
     diag.add_argument("--validate", help="held-out CSV/Parquet file, ideally from another excitation")
     diag.add_argument("--out", help="output folder (default runs/<config name>_diagnosis)")
-    diag.add_argument("--threads", type=int, help="torch CPU threads (1 is fastest on a busy machine)")
-    diag.set_defaults(handler=_diagnose)
+    diag.add_argument("--threads", type=_positive_int, help="torch CPU threads (1 is fastest on a busy machine)")
+    diag.set_defaults(handler=_diagnose, out_default="{stem}_diagnosis")
     args, extra = parser.parse_known_args(argv)  # overrides may follow options
     unknown = [e for e in extra if e.startswith("-") or "=" not in e]
     if unknown:
         parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     if extra:
         args.overrides = list(getattr(args, "overrides", [])) + extra
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
-    keep_freed_memory()
+    args.out = str(args.out or Path("runs") / args.out_default.format(stem=Path(args.config).stem))
+    return args
+
+
+def _positive_int(text: str) -> int:
     try:
-        return args.handler(args)
-    except MSAMError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_INPUT_ERROR
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a positive whole number")
+    return value
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value >= 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number of seconds")
+    return value
+
+
+def _dispatch(args) -> int:
+    """Run the command with its output folder checked and locked; a failed run that created the
+    folder removes it (a run that learnt nothing keeps the result that says so)."""
+    from .outputs import check_folder, locked
+
+    belongs = None
+    if args.command == "diagnose":
+        from .diagnose.report import is_report_file as belongs
+    out = check_folder(args.out, "--out", belongs)
+    created = not out.exists()
+    with locked(out):
+        try:
+            return args.handler(args)
+        except BaseException as exc:
+            if created and not isinstance(exc, (NoInformation, Interrupted, BrokenPipeError)):
+                shutil.rmtree(out, ignore_errors=True)
+            raise
+
+
+def _report(exc: MSAMError) -> int:
+    print(f"error: {_one_line(exc)}", file=sys.stderr)
+    return exc.exit_status
+
+
+def _internal_error(exc: Exception, verbose: bool) -> int:
+    """One line naming the bug and where its traceback is (a temporary log, or stderr with -v)."""
+    where = "traceback above"
+    if not verbose:
+        try:
+            fd, log = tempfile.mkstemp(prefix="msam-error-", suffix=".log")
+            with os.fdopen(fd, "w") as handle:
+                traceback.print_exc(file=handle)
+            where = f"traceback in {log}; rerun with -v to print it"
+        except OSError:  # no writable temporary folder: the traceback goes to stderr
+            verbose = True
+    if verbose:
+        traceback.print_exc()
+    print(f"internal error (a bug in msam-torch, please report it): {type(exc).__name__}: {_one_line(exc)} "
+          f"({where})", file=sys.stderr)
+    return EXIT_BUG
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's final flush does not fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):
+        pass
 
 
 if __name__ == "__main__":

@@ -2,17 +2,20 @@
 
 A config has three sections: ``model`` (the starting model, see :mod:`msam_torch.spec`), ``data``
 (where the measurements come from) and ``adaptation`` (the MSAM options). Unknown keys, wrong
-types and malformed YAML raise :class:`~msam_torch.errors.ConfigError` naming the key path.
-Values are data: YAML is read with ``yaml.safe_load`` and no string is ever executed.
+types, non-finite numbers, duplicated YAML keys, nesting deeper than :data:`MAX_YAML_DEPTH` and
+malformed YAML raise :class:`~msam_torch.errors.ConfigError` naming the key path (and line).
+Values are data: YAML is read with a ``yaml.SafeLoader`` and no string is ever executed.
 """
 from __future__ import annotations
 
+import math
+import re
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
 import pydantic
 import yaml
-from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, model_validator
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
 
 from .derivatives import ESTIMATORS
 from .errors import ConfigError
@@ -20,11 +23,31 @@ from .evaluators import EVALUATORS
 from .registry import Choice
 from .step_rules import STEP_SIZES, ThetaRule
 
-Number = Union[float, int]
+MAX_YAML_DEPTH = 64
+_BRANCH = re.compile(r"^(str|int|float|bool|[a-z-]+\[.*[a-z].*\])$")  # pydantic's labels of union branches in a location
+
+
+def _within_float64(value):
+    try:
+        finite = math.isfinite(float(value))
+    except OverflowError:
+        finite = False
+    if not finite:
+        raise ValueError("must be a finite number within float64")
+    return value
+
+
+def _not_boolean(value):
+    if isinstance(value, bool):
+        raise ValueError("must be a number, not a boolean")
+    return value
+
+
+Number = Annotated[Union[float, int], BeforeValidator(_not_boolean), AfterValidator(_within_float64)]
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class ComponentConfig(_Section):
@@ -134,7 +157,7 @@ class DataConfig(_Section):
     validation: Optional[RangeConfig] = None
     parametric_error: float = Field(0.0, ge=0, description="total relative error of the nominal parameters")
     noise: float = Field(0.0, ge=0, description="simulated measurement noise, as a fraction of each signal's std")
-    seed: int = 0
+    seed: int = Field(0, ge=0, lt=2**64, description="random seed (0 <= seed < 2**64)")
     derivatives: Annotated[Any, Choice(ESTIMATORS)] = Field(
         "auto", description="how unmeasured derivatives are estimated: a name in msam_torch.derivatives.ESTIMATORS "
                             "or, from Python, an estimator object; 'auto': exact for a noise-free simulated system, "
@@ -148,7 +171,7 @@ class DataConfig(_Section):
 
 class SimulationConfig(_Section):
     """Simulation-based evaluation (paper section 2): candidates are simulated with torchdiffeq and
-    compared with the measured outputs (see :mod:`msam_torch.simulation_mode`)."""
+    compared with the measured outputs (see :mod:`msam_torch.simulation`)."""
 
     output: list[str] = Field([], description="measured states compared with the simulation, e.g. [x2]")
     coupling: Literal["joint", "separate"] = Field(
@@ -162,7 +185,6 @@ class SimulationConfig(_Section):
     initial_guess: dict[str, Number] = Field({}, description="initial values of states the data do not give")
     prefit_steps: int = Field(15, ge=0, description="Levenberg-Marquardt steps fitting theta and initial states first")
     refit_steps: int = Field(0, ge=0, description="Levenberg-Marquardt steps on theta and initial states before every exponent step")
-    relative_step: float = Field(1e-6, gt=0, description="relative finite-difference step for theta and initial states")
     saturation: dict[str, tuple[Optional[Number], Optional[Number]]] = Field(
         {}, description="range [low, high] of a simulated state (null: unbounded), e.g. {x2: [null, 10]}: the state "
                         "stops at a limit while its rate points beyond it (a tank that overflows, a level or sensor "
@@ -186,11 +208,24 @@ class AdaptationConfig(_Section):
     gamma_limit: float = Field(20.0, gt=0, description="|gamma| beyond which a candidate is marked diverged")
     chunk_size: int = Field(4096, ge=1, description="candidates per batched chunk (bounds memory)")
     dtype: Literal["float64", "float32"] = "float64"
-    device: str = "cpu"
+    device: str = Field("cpu", description="torch device, one the installed torch can use ('cpu', 'cuda', 'cuda:1')")
     evaluation: Annotated[Any, Choice(EVALUATORS)] = Field(
         "algebraic", description="candidate outputs from estimated states (Eq. 6) or by simulation "
                                  "(msam_torch.evaluators.EVALUATORS, or an evaluator object)")
     simulation: SimulationConfig = SimulationConfig()
+
+    @field_validator("device")
+    @classmethod
+    def _usable_device(cls, value: str) -> str:
+        """The device exists in this torch build and holds a tensor."""
+        import torch
+
+        try:
+            torch.zeros(1, device=torch.device(value)).sum().item()
+        except Exception as exc:  # torch raises RuntimeError, AssertionError, ... per backend
+            reason = " ".join(str(exc).split()[:12]) or type(exc).__name__
+            raise ValueError(f"{value!r} cannot be used by this torch {torch.__version__} ({reason})") from None
+        return value
 
 
 class Config(_Section):
@@ -198,12 +233,58 @@ class Config(_Section):
     data: DataConfig = DataConfig()
     adaptation: AdaptationConfig = AdaptationConfig()
 
+    @model_validator(mode="after")
+    def _initial_guess_of_states(self):
+        """``adaptation.simulation.initial_guess`` names states of the model."""
+        for name in self.adaptation.simulation.initial_guess:
+            if name not in self.model.states:
+                raise ConfigError(f"adaptation.simulation.initial_guess.{name}",
+                                  f"{name!r} is not a state of the model ({', '.join(self.model.states)})")
+        return self
+
+
+class Loader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that rejects a key given twice in one mapping and nesting deeper than
+    :data:`MAX_YAML_DEPTH` (which would otherwise end in a ``RecursionError``)."""
+
+    depth = 0
+
+    def compose_node(self, parent, index):
+        self.depth += 1
+        try:
+            if self.depth > MAX_YAML_DEPTH:
+                raise yaml.composer.ComposerError(None, None, f"nested deeper than {MAX_YAML_DEPTH} levels",
+                                                  self.peek_event().start_mark)
+            return super().compose_node(parent, index)
+        finally:
+            self.depth -= 1
+
+    def construct_mapping(self, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            key = self.construct_object(key_node, deep=True)
+            try:
+                duplicated = key in seen
+            except TypeError:  # unhashable: the base class says so
+                continue
+            if duplicated:
+                raise yaml.constructor.ConstructorError(None, None, f"duplicated key {key!r}", key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
+def load_yaml(text: str):
+    """Parse YAML ``text`` with :class:`Loader`."""
+    return yaml.load(text, Loader=Loader)
+
 
 def read_yaml(path: Union[str, Path], what: str = "config") -> dict:
     """A YAML mapping from ``path``; unreadable or malformed files raise :class:`ConfigError`."""
     path = Path(path)
     try:
-        raw = yaml.safe_load(path.read_text())
+        raw = load_yaml(path.read_text())
     except FileNotFoundError:
         raise ConfigError("", f"{path}: no such {what} file") from None
     except yaml.YAMLError as exc:
@@ -216,13 +297,17 @@ def read_yaml(path: Union[str, Path], what: str = "config") -> dict:
 
 
 def validate(schema: type[BaseModel], raw: dict, origin: str):
-    """``schema.model_validate(raw)``; the first problem raises :class:`ConfigError` with its key path."""
+    """``schema.model_validate(raw)``; the first problem raises :class:`ConfigError` with its key path
+    (a value's own check, such as finiteness, is preferred to the type mismatches of a union's
+    other branches, whose names are left out of the path)."""
     try:
         return schema.model_validate(raw)
     except pydantic.ValidationError as exc:
-        error = exc.errors()[0]
-        key = ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in error["loc"]).replace(".[", "[")
-        raise ConfigError(key, f"{error['msg']} (in {origin})") from None
+        errors = exc.errors()
+        error = next((e for e in errors if e["type"] == "value_error"), errors[0])
+        loc = [p for p in error["loc"] if not (isinstance(p, str) and _BRANCH.match(p))]
+        key = ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in loc).replace(".[", "[")
+        raise ConfigError(key, f"{error['msg'].removeprefix('Value error, ')} (in {origin})") from None
 
 
 def load_config(source: Union[str, Path, dict], overrides: list[str] = ()) -> Config:
@@ -257,7 +342,7 @@ def _apply_overrides(raw: dict, overrides) -> dict:
             if not isinstance(node, dict):
                 raise ConfigError(key, f"{part!r} is not a section")
         try:
-            node[parts[-1]] = yaml.safe_load(value)
+            node[parts[-1]] = load_yaml(value)
         except yaml.YAMLError as exc:
             raise ConfigError(key, f"malformed value {value!r}{_yaml_place(exc)}") from None
     return raw

@@ -73,13 +73,13 @@ def load_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str = ".
         return simulated_dataset(config, spec, dtype, estimator), None
     base_dir = Path(base_dir)
     table, source = (as_frame(frame, "data frame") if frame is not None
-                     else read_frame(base_dir / config.file))
+                     else read_frame(base_dir / config.file, base_dir))
     train = measured_dataset(select_range(table, config.train, config, source, "data.train"),
                              config, spec, f"{source} (data.train)", dtype, estimator)
     validation = None
     if validation_frame is not None or config.validation_file is not None:
         held, held_source = (as_frame(validation_frame, "validation frame") if validation_frame is not None
-                             else read_frame(base_dir / config.validation_file))
+                             else read_frame(base_dir / config.validation_file, base_dir))
         validation = measured_dataset(held, config, spec, held_source, dtype, estimator)
     elif config.validation is not None:
         part = select_range(table, config.validation, config, source, "data.validation")
@@ -144,9 +144,10 @@ def as_frame(data: Table, source: str) -> tuple[pd.DataFrame, str]:
     return frame, source
 
 
-def read_frame(path: Path) -> tuple[pd.DataFrame, str]:
+def read_frame(path: Path, folder: Path | None = None) -> tuple[pd.DataFrame, str]:
     """Read a CSV or Parquet file. CSV rows are indexed by their line in the file; unnamed
-    empty columns (trailing commas) are dropped."""
+    empty columns (trailing commas) are dropped. Error messages list the file's column names only
+    when it lies inside ``folder`` (the config's): nothing of a file elsewhere is ever echoed."""
     source = str(path)
     if not path.is_file():
         raise DataError(f"{source}: no such data file")
@@ -168,7 +169,9 @@ def read_frame(path: Path) -> tuple[pd.DataFrame, str]:
         kind = "Parquet" if parquet else "CSV"
         raise DataError(f"{source}: cannot read as {kind}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
     keep = [c for c in frame.columns if not (str(c).startswith("Unnamed") and frame[c].isna().all())]
-    return frame.loc[:, keep], source
+    frame = frame.loc[:, keep]
+    frame.attrs["private"] = folder is None or not path.resolve().is_relative_to(Path(folder).resolve())
+    return frame, source
 
 
 def _data_lines(path: Path) -> list[int]:
@@ -194,7 +197,8 @@ def column(frame: pd.DataFrame, name: str, source: str, key: str) -> np.ndarray:
         lower = {n.lower(): n for n in names}
         close = difflib.get_close_matches(str(name).lower(), list(lower), n=1)
         hint = f"; did you mean {lower[close[0]]!r}?" if close else ""
-        raise DataError(f"{source}: no column {name!r} (asked for by {key}); columns are {names}{hint}")
+        listing = "" if frame.attrs.get("private") else f"; columns are {names}{hint}"
+        raise DataError(f"{source}: no column {name!r} (asked for by {key}){listing}")
     raw = frame[name]
     values = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=float)
     for bad, what in ((raw.isna().to_numpy(), "missing or NaN"),
@@ -323,23 +327,39 @@ def check_variation(spec: ModelSpec, signals: Mapping[str, torch.Tensor], source
     function's magnitude, or its exponent has nothing to act on."""
     for e, equation in enumerate(spec.equations):
         target = signals[equation.target]
-        if float(target.max() - target.min()) == 0.0:
-            raise DataError(f"{source}: the target {equation.target!r} of model.equations[{e}] is constant: "
-                            "the fitness correlation (Eq. 19) needs it to vary")
+        unknowns = len(equation.components) + len(equation.adjustable)
+        if target.shape[-1] < unknowns + 2:
+            raise DataError(f"{source}: {target.shape[-1]} samples for model.equations[{e}], which fits {unknowns} "
+                            f"values (theta and exponents); the fitness (Eq. 19) needs at least {unknowns + 2}")
+        if _constant(target):
+            raise DataError(f"{source}: the target {equation.target!r} of model.equations[{e}] is constant up to "
+                            "rounding: the fitness correlation (Eq. 19) needs it to vary")
         expressions = [(f"components[{i}].term", c.term) for i, c in enumerate(equation.components)]
         expressions += [(f"adjustments[{i}]", f) for i, f in enumerate(equation.adjustments)]
-        for key, expression in expressions:
-            value = torch.as_tensor(expression(signals))
-            bad = torch.nonzero(~torch.isfinite(value.expand_as(target))).flatten()
+        for key, expression in [("target", None)] + expressions:
+            value = target if expression is None else torch.as_tensor(expression(signals)).expand_as(target)
+            bad = torch.nonzero(~torch.isfinite(value)).flatten()
+            name = repr(equation.target if expression is None else expression.text)
             if bad.numel():
-                raise DataError(f"{source}: {expression.text!r} (model.equations[{e}].{key}) is not finite at "
+                raise DataError(f"{source}: {name} (model.equations[{e}].{key}) is not finite at "
                                 f"{bad.numel()} samples (first at sample {int(bad[0])}, 0-based)")
+            finfo, size = torch.finfo(value.dtype), float(value.abs().max())
+            if 0 < size < finfo.tiny ** 0.5 or size > finfo.max ** 0.5:
+                raise DataError(f"{source}: {name} (model.equations[{e}].{key}) reaches at most {size:.3g}, beyond "
+                                f"what {value.dtype} can square ({finfo.tiny ** 0.5:.2g} .. {finfo.max ** 0.5:.2g}): "
+                                "rescale the data")
         for i, function in enumerate(equation.adjustments):
             magnitude = torch.as_tensor(function(signals)).abs().expand_as(target)
-            if float(magnitude.max() - magnitude.min()) == 0.0:
+            if _constant(magnitude):
                 raise DataError(f"{source}: adjustment function {function.text!r} (model.equations[{e}]"
                                 f".adjustments[{i}]) has constant magnitude on the data, so its exponent "
                                 "cannot be identified")
+
+
+def _constant(values: torch.Tensor) -> bool:
+    """Constant up to rounding: the spread is within what summing the samples (N eps) leaves."""
+    spread, size = float(values.max() - values.min()), float(values.abs().max())
+    return spread <= values.shape[-1] * torch.finfo(values.dtype).eps * size
 
 
 @functools.lru_cache(maxsize=8)
@@ -370,6 +390,7 @@ def simulated_dataset(config: DataConfig, spec: ModelSpec, dtype, estimator: Der
     info = {"source": f"system:{config.system}", "noise": config.noise, "seed": config.seed}
     if isinstance(estimator, Exact) and config.noise == 0:
         signals = {k: torch.as_tensor(v, dtype=dtype) for k, v in simulated.items()}
+        check_variation(spec, signals, info["source"])
         return Dataset(signals, {**info, "samples": int(simulated["t"].size), "derivatives": estimator.name})
     if isinstance(estimator, Exact):
         raise ConfigError("data.derivatives", "with noise, derivatives must be estimated: choose one of "

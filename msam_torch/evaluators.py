@@ -3,7 +3,7 @@ calls, and :data:`EVALUATORS`, the registry ``adaptation.evaluation`` names one 
 
 - ``algebraic`` (:class:`msam_torch.trainer.Algebraic`, the default): candidate outputs from the
   estimated states, one step ahead (paper section 2, Eq. 6-7);
-- ``simulation`` (:class:`msam_torch.simulation_mode.SimulationEvaluator`): candidates simulated
+- ``simulation`` (:class:`msam_torch.simulation.evaluator.SimulationEvaluator`): candidates simulated
   under the measured inputs and compared on the measured outputs (the paper's section 2 alternative).
 
 Both are defined in modules that depend on the config schema, which imports this registry; they are
@@ -42,4 +42,4 @@ class Evaluator(Protocol):
 
 EVALUATORS: Registry[Evaluator] = Registry("adaptation.evaluation", Evaluator, "evaluator")
 EVALUATORS.register("algebraic", "msam_torch.trainer:Algebraic")
-EVALUATORS.register("simulation", "msam_torch.simulation_mode:SimulationEvaluator")
+EVALUATORS.register("simulation", "msam_torch.simulation.evaluator:SimulationEvaluator")

@@ -80,8 +80,8 @@ class ModelSpec:
     inputs: tuple[str, ...]
     parameters: Mapping[str, float]
     equations: tuple[Equation, ...]
-    quantities: Mapping[str, str] = field(default_factory=dict)  # signal -> declared quantity
-    effects: tuple[EffectConfig, ...] = ()  # the config's own catalogue entries
+    quantities: Mapping[str, str] = field(default_factory=dict, kw_only=True)  # signal -> declared quantity
+    effects: tuple[EffectConfig, ...] = field(default=(), kw_only=True)  # the config's own catalogue entries
 
     @classmethod
     def from_config(cls, config: ModelConfig) -> "ModelSpec":
@@ -146,8 +146,8 @@ class ModelSpec:
             if name not in signals - {"t"}:
                 raise ConfigError(f"model.quantities.{name}", f"{name!r} is not a state, an input or a derivative of one")
         quantities = {name: q.quantity for name, q in config.quantities.items()}
-        return cls(tuple(config.states), tuple(config.inputs), dict(config.parameters), tuple(equations), quantities,
-                   tuple(config.effects))
+        return cls(tuple(config.states), tuple(config.inputs), dict(config.parameters), tuple(equations),
+                   quantities=quantities, effects=tuple(config.effects))
 
     def theta(self, equation: Equation, parameters: Mapping[str, float] | None = None) -> torch.Tensor:
         """Nominal theta of every component of ``equation`` (float64, shape (Q,))."""

@@ -6,7 +6,7 @@ Events: ``round_robin_step``, ``round_robin_end``, ``refinement_step``, ``refine
 Candidates are processed in chunks of ``chunk_size`` so memory stays bounded; all trials of a
 batch (leading axis T) run together. How a candidate is evaluated and stepped is the trainer's
 ``evaluator`` (:class:`~msam_torch.evaluators.Evaluator`): :class:`Algebraic` (Eq. 6, the default)
-or the simulation-based evaluator of :mod:`msam_torch.simulation_mode`; the best *state* of each
+or the simulation-based evaluator of :mod:`msam_torch.simulation`; the best *state* of each
 candidate (exponents, theta and, in simulation mode, initial states) is what the stages keep and
 hand on. ``diagnostics`` switches on the condition numbers ``cond(Phi^T Phi)`` of every step
 (Figure 5; ``result.cond_scaled`` / ``cond_unscaled`` in the step events, else None): two
@@ -77,6 +77,7 @@ class Trainer:
         self.evaluator = evaluator
         self.diagnostics = diagnostics
         self.callbacks: dict[str, list[Callable]] = defaultdict(list)
+        self.stop_requested = False  # set by a callback (a time limit): every loop ends, keeping its best state
 
     def add_callback(self, event: str, fn: Callable) -> None:
         self.callbacks[event].append(fn)
@@ -145,6 +146,8 @@ class Trainer:
             best_fitness = initial_best
         best = state
         for iteration in range(steps):
+            if self.stop_requested:
+                break
             result = evaluator.step(selection, state, current, self.options, conditions=self.diagnostics)
             state = result.state
             current = evaluator.evaluate(selection, state, self.options)

@@ -9,10 +9,10 @@ from msam_torch.api import adapt
 from msam_torch.candidates import EquationData
 from msam_torch.config import load_config
 from msam_torch.data import load_datasets
-from msam_torch.simulation_mode import free_run_models
+from msam_torch.simulation import free_run_models
 from msam_torch.spec import ModelSpec
 from msam_torch.diagnose import diagnose
-from msam_torch.errors import ConfigError, DataError
+from msam_torch.errors import DataError
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
@@ -114,9 +114,3 @@ def test_cascaded_tanks_diagnosis_finds_torricelli_and_flags_the_saturation():
     assert lower.where["flagged_fraction"] < 0.25, lower.where
     assert report.equations[0].where["flagged_fraction"] == 0.0  # the upper level is not measured
 
-
-def test_simulation_diagnosis_names_the_key_when_given_an_in_memory_record():
-    config = load_config(CONFIGS / "emps.yaml")
-    record, _ = load_datasets(config.data, ModelSpec.from_config(config.model), CONFIGS)
-    with pytest.raises(ConfigError, match="adaptation.evaluation: evaluation by simulation reads its records from files"):
-        diagnose(CONFIGS / "cascaded_tanks.yaml", data=record)

@@ -10,7 +10,8 @@ from torchdiffeq import odeint
 from msam_torch.candidates import equation_choices
 from msam_torch.config import load_config
 from msam_torch.errors import ConfigError
-from msam_torch.simulation_mode import build_model, prepare
+from msam_torch.plan import prepare
+from msam_torch.simulation import build_model, prepare_group
 from msam_torch.spec import ModelSpec
 
 from tests.test_simulation_mode import TANKS
@@ -55,7 +56,7 @@ def test_saturation_lets_the_starting_fit_match_a_record_with_a_saturated_level(
     def fitted(saturation):
         config = load_config(linear_tanks(saturation))
         spec = ModelSpec.from_config(config.model)
-        prepared = prepare(config, spec, spec.equations, config.model.parameters, tmp_path)
+        prepared = prepare_group(prepare(config), spec.equations, config.model.parameters, tmp_path)
         data = prepared.data
         unadjusted = torch.full_like(prepared.theta, data.model.unadjusted, dtype=torch.long)
         yhat = data.output(torch.zeros_like(prepared.theta), unadjusted, prepared.theta, prepared.theta_fixed, data.initial)
@@ -78,7 +79,7 @@ def test_saturation_errors_name_the_key(tmp_path):
         config = load_config(linear_tanks(saturation))
         spec = ModelSpec.from_config(config.model)
         with pytest.raises(ConfigError, match=message) as info:
-            prepare(config, spec, spec.equations, LINEAR, tmp_path)
+            prepare_group(prepare(config), spec.equations, LINEAR, tmp_path)
         assert "adaptation.simulation.saturation" in str(info.value)
 
 

@@ -1,11 +1,11 @@
 """Comparison of models: the starting, theta-retuned and adapted models (and every bootstrap
-trial's retuned and adapted pair) one-step and in free run (:mod:`msam_torch.simulate`) on the
+trial's retuned and adapted pair) one-step and in free run (:mod:`msam_torch.simulation`) on the
 training and held-out data, with the part of the gap each closes (:mod:`.measures`)."""
 from __future__ import annotations
 
 import torch
 
-from ..simulate import EquationModel, simulate
+from ..simulation import EquationModel, simulate_equations as simulate
 from ..spec import Equation, ModelSpec
 from . import measures
 from .bootstrap import Bootstrap

@@ -45,7 +45,7 @@ def diagnose(config: Config | dict | str | Path, data: DataArgument = None, vali
         config = load_config(config, overrides)
     plan = prepare(config, in_memory=data is not None)
     if not isinstance(plan.evaluator, Algebraic):  # judged by simulation
-        return diagnose_simulated(config, Path(base_dir), options, data=data, validation=validation)
+        return diagnose_simulated(plan, Path(base_dir), options, data=data, validation=validation)
     spec, device = plan.spec, plan.device
     train, held_out = resolve_datasets(config.data, spec, base_dir, plan.dtype, data, validation, plan.derivatives)
     train, held_out = (None if d is None else replace(d, signals={k: v.to(device) for k, v in d.signals.items()})

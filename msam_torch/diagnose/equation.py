@@ -11,7 +11,7 @@ import torch
 
 from ..data import Dataset
 from ..result import format_component, format_equation
-from ..simulate import EquationModel
+from ..simulation import EquationModel
 from ..spec import Equation, ModelSpec
 from ..step import StepOptions
 from . import catalogue, confidence

@@ -9,11 +9,11 @@ model), ``data``, ``options``, ``config``, ``seconds``.
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from ..result import _finite, write_atomic
+from ..outputs import check_folder, one_set, write_atomic
+from ..result import _finite
 from .verdict import Verdict
 
 SCHEMA_VERSION = 1
@@ -127,11 +127,18 @@ class GapReport:
         return out
 
     def save(self, out: str | Path, plots: bool = True) -> Path:
-        """Write ``gap_report.json`` and ``report.md`` (with PNGs) into ``out``; return the JSON path."""
-        out = Path(out)
-        path = write_atomic(out / "gap_report.json", json.dumps(_finite(self.to_dict()), indent=2))
-        write_markdown(self, out, plots)
-        return path
+        """Write ``gap_report.json`` and ``report.md`` (with PNGs) into ``out`` as one set (a folder
+        renamed into place, :func:`~msam_torch.outputs.one_set`); return the JSON path."""
+        out = check_folder(out, "out", is_report_file)
+        with one_set(out) as stage:
+            write_atomic(stage / "gap_report.json", json.dumps(_finite(self.to_dict()), indent=2))
+            write_markdown(self, stage, plots)
+        return out / "gap_report.json"
+
+
+def is_report_file(path: Path) -> bool:
+    """A file a gap report writes: a folder it replaces may hold nothing else."""
+    return path.is_file() and (path.name in ("gap_report.json", "report.md") or path.suffix == ".png")
 
 
 def write_markdown(report: GapReport, out: Path, plots: bool = True) -> Path:
@@ -281,11 +288,8 @@ def _margin(confidence: dict) -> str:
 def _save(fig, out: Path, name: str) -> str:
     import matplotlib.pyplot as plt
 
-    out.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    temporary = out / f".{name}.tmp.png"
-    fig.savefig(temporary, dpi=90)
+    fig.savefig(out / name, dpi=90)  # into the set's staging folder (GapReport.save)
     plt.close(fig)
-    os.replace(temporary, out / name)  # atomic, like every file the report writes
     return name
 

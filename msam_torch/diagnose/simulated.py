@@ -20,11 +20,10 @@ from pathlib import Path
 import torch
 
 from ..api import adapt, nominal_parameters
-from ..config import Config
-from ..errors import ConfigError
-from ..derivatives import METHODS, estimate
+from ..derivatives import METHODS, Auto, DerivativeEstimator
+from ..plan import Plan
 from ..result import EquationResult, adjusted_columns, format_component, format_equation
-from ..simulation_mode import FreeRun, free_runs
+from ..simulation import FreeRun, free_runs
 from ..spec import Equation, ModelSpec, split_derivative
 from . import catalogue, confidence, localise, measures
 from .localise import signal_values
@@ -34,21 +33,23 @@ from .verdict import Verdict, overall
 RECORDS = {"train": "train", "validation": "held_out"}
 
 
-def diagnose_simulated(config: Config, base_dir: Path, options, data=None, validation=None) -> GapReport:
-    """:func:`msam_torch.diagnose.diagnose` for a config evaluated by simulation; ``data`` and
-    ``validation``: CSV/Parquet paths of the training and held-out records."""
-    config = _with_files(config, data, validation)
+def diagnose_simulated(plan: Plan, base_dir: Path, options, data=None, validation=None) -> GapReport:
+    """:func:`msam_torch.diagnose.diagnose` for a config evaluated by simulation (``plan``: the
+    config's :class:`~msam_torch.plan.Plan`). ``data`` and ``validation`` (a path, a DataFrame, a
+    mapping of arrays or a :class:`~msam_torch.data.Dataset`) replace the config's training and
+    validation records."""
+    config = plan.config
     started = time.perf_counter()
     spec = ModelSpec.from_config(config.model)
     parameters = nominal_parameters(config, spec)
-    result = adapt(config, base_dir=base_dir)
+    result = adapt(config, base_dir=base_dir, data=data, validation=validation)
     retuned_theta = {t: th for group in result.data["simulation"] for t, th in group["retuned_theta"].items()}
     unadjusted = lambda eq, theta: EquationResult(eq.target, "", "", [None] * len(eq.components),
                                                   [None] * len(eq.components), theta, {}, {}, [], 0)
     models = {"start": [unadjusted(eq, spec.theta(eq, parameters).tolist()) for eq in spec.equations],
               "retuned": [unadjusted(eq, retuned_theta[eq.target]) for eq in spec.equations],
               "adapted": result.equations}
-    runs = free_runs(config, spec, models, base_dir)
+    runs = free_runs(config, spec, models, base_dir, data=data, validation=validation)
     gap_measures = {"one_step": {}, "free_run": {RECORDS[k]: _free_run_measures(run) for k, run in runs.items()}}
     held_out = runs.get("validation", runs["train"])
     rmse = torch.sqrt(((held_out.simulated - held_out.record.outputs) ** 2).mean((-1, -2)))  # start, retuned, adapted
@@ -56,12 +57,12 @@ def diagnose_simulated(config: Config, base_dir: Path, options, data=None, valid
     significant = bool(confidence.significant(rmse[2], rmse[1], target_rms, options.relative, options.absolute))
     series, gaps = {}, []
     for e, (eq, adapted) in enumerate(zip(spec.equations, result.equations)):
-        where = _remaining_gap(config, eq, adapted, runs["train"])
+        where = _remaining_gap(plan, eq, adapted, runs["train"])
         series[eq.target] = {"where": where["series"]} if where["series"] else {}
         for key, run in runs.items():
             series[eq.target][f"free_run_{RECORDS[key]}"] = _trajectories(run)
         gaps.append(_equation_gap(eq, adapted, models["start"][e].theta, models["retuned"][e].theta, significant,
-                                  rmse, target_rms, where["summary"], options, config))
+                                  rmse, target_rms, where["summary"], options, plan))
     kind, verdict = overall(gaps, significant, name_targets=True)
     left = [f"{g.target} where {g.where['regions'][0]['rule']}" for g in gaps if g.where["flagged_fraction"] > 0]
     if left:
@@ -74,28 +75,16 @@ def diagnose_simulated(config: Config, base_dir: Path, options, data=None, valid
                      seconds=time.perf_counter() - started, series=series)
 
 
-def _with_files(config: Config, data, validation) -> Config:
-    """``config`` reading ``data`` and ``validation`` (files) as its training and validation records."""
-    if any(v is not None and not isinstance(v, (str, Path)) for v in (data, validation)):
-        raise ConfigError("adaptation.evaluation", "evaluation by simulation reads its records from files: "
-                          "give data and validation as CSV/Parquet paths")
-    update = {}
-    if data is not None:
-        update.update(file=str(Path(data).resolve()), system=None, validation=None)
-    if validation is not None:
-        update.update(validation_file=str(Path(validation).resolve()), validation=None)
-    return config.model_copy(update={"data": config.data.model_copy(update=update)}) if update else config
-
-
 def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retuned: list, significant: bool,
-                  rmse: torch.Tensor, target_rms: float, where: dict, options, config: Config) -> EquationGap:
+                  rmse: torch.Tensor, target_rms: float, where: dict, options, plan: Plan) -> EquationGap:
     """One equation's gap: ``rmse`` (3,) is the held-out free-run RMSE of the start, retuned and
     adapted models (the group's, shared by its equations)."""
     index = [i for i, a in enumerate(adapted.adjustments) if a is not None]
     texts = [f.text for f in eq.adjustments]
-    spec = ModelSpec.from_config(config.model)
-    names = {i: catalogue.name_effect(eq, i, texts.index(adapted.adjustments[i]), adapted.exponents[i],
-                                      adapted.theta[i], start_theta[i], spec) for i in index}
+    spec = ModelSpec.from_config(plan.config.model)
+    found = {i: catalogue.effect_entry(eq, i, texts.index(adapted.adjustments[i]), adapted.exponents[i],
+                                       adapted.theta[i], start_theta[i], spec)[0] for i in index}
+    names = {i: catalogue.NOT_CATALOGUED if e is None else e.name for i, e in found.items()}
     known = [i for i in index if names[i] != catalogue.NOT_CATALOGUED]
     shown = known[0] if known else (index[0] if index else None)
     effect = names[shown] if significant and shown is not None else None
@@ -110,7 +99,7 @@ def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retu
     return EquationGap(
         target=eq.target, significant=significant, verdict_kind=kind, effect=effect,
         hypothesis=label(shown) if shown is not None else "none", exponent=adapted.exponents[shown] if shown is not None else None,
-        catalogue_exponent=adapted.exponents[shown] if effect not in (None, catalogue.NOT_CATALOGUED) else None,
+        catalogue_exponent=catalogue.catalogue_exponent(found[shown]) if effect not in (None, catalogue.NOT_CATALOGUED) else None,
         start_equation=format_equation(eq.target, list(start_theta), terms),
         retuned_equation=format_equation(eq.target, list(retuned), terms), adapted_equation=adapted.equation,
         confidence={"margin": float("nan"), "runner_up": None, "win_frequency": float("nan"), "bootstrap_trials": 0,
@@ -119,16 +108,16 @@ def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retu
                      "adapted_rmse": float(rmse[2]), "relative": float(1 - rmse[2] / rmse[1]), "target_rms": target_rms,
                      "rule": {"relative": options.relative, "absolute": options.absolute}},
         structure_left=float((rmse[2] / rmse[1]) ** 2), components=components, ranking=adapted.ranking, where=where,
-        estimator={"evaluation": "simulation", "method": config.adaptation.simulation.method,
-                   "derivatives": _method(config)})
+        estimator={"evaluation": "simulation", "method": plan.config.adaptation.simulation.method,
+                   "derivatives": _estimator(plan).name})
 
 
-def _method(config: Config) -> str:
-    """The derivative estimator of the remaining-gap rows (``exact``/``auto``: Savitzky-Golay)."""
-    return config.data.derivatives if config.data.derivatives in METHODS else "savgol"
+def _estimator(plan: Plan) -> DerivativeEstimator:
+    """The derivative estimator of the remaining-gap rows (for ``exact``: ``auto``'s)."""
+    return plan.derivatives if plan.derivatives.name in METHODS else Auto()
 
 
-def _remaining_gap(config: Config, eq: Equation, adapted: EquationResult, run: FreeRun) -> dict:
+def _remaining_gap(plan: Plan, eq: Equation, adapted: EquationResult, run: FreeRun) -> dict:
     """Where the adapted model still misses, on the one-step rows of ``eq`` (training record);
     nothing is flagged when the target derives from no measured output."""
     base, order = split_derivative(eq.target)
@@ -141,7 +130,7 @@ def _remaining_gap(config: Config, eq: Equation, adapted: EquationResult, run: F
     signals = {"t": t, **dict(zip(run.model.states, run.states[2].unbind(-1))),
                **dict(zip(run.model.external, record.external.unbind(-1)))}
     y = record.outputs[run.outputs.index(base)]
-    est = estimate(t.cpu().numpy(), y.cpu().numpy(), order, _method(config), config.data.window, base, config.data.cutoff)
+    est = _estimator(plan).estimate(t.cpu().numpy(), y.cpu().numpy(), order, base)
     signals[base] = torch.as_tensor(est.values[0], dtype=t.dtype, device=t.device)
     signals[eq.target] = torch.as_tensor(est.values[order], dtype=t.dtype, device=t.device)
     design = adjusted_columns(eq, adapted, signals)

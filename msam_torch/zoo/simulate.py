@@ -1,5 +1,5 @@
 """The truth simulated with ``scipy.integrate.solve_ivp`` (tight tolerances, inputs interpolated
-on a dense grid), independently of :mod:`msam_torch.simulate`; and the share of the dynamics a
+on a dense grid), independently of :mod:`msam_torch.simulation`; and the share of the dynamics a
 withheld effect contributes."""
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 of them may withhold.
 
 The right-hand side is evaluated here with numpy, independently of the package's own model code
-(:mod:`msam_torch.simulate`), so the simulated truth does not share a bug with what it checks.
+(:mod:`msam_torch.simulation`), so the simulated truth does not share a bug with what it checks.
 """
 from __future__ import annotations
 
