@@ -22,7 +22,7 @@ from msam_torch.api import adapt
 from msam_torch.candidates import EquationData
 from msam_torch.config import load_config
 from msam_torch.data import load_datasets
-from msam_torch.diagnose.catalogue import CATALOGUE, name_effect
+from msam_torch.diagnose.catalogue import effect_entry
 from msam_torch.result import EquationResult, adjusted_columns
 from msam_torch.simulation import free_run_models
 from msam_torch.spec import ModelSpec
@@ -51,17 +51,17 @@ def one_step(equation, entry, signals: dict) -> torch.Tensor:
 def named_laws(equation, entry, starting: torch.Tensor) -> list[tuple[int, str, float]]:
     """(component, catalogue name, the name's exponent) of each adjusted component of ``entry``
     whose exponent falls in a catalogue interval (msam_torch.diagnose.catalogue); the name's
-    exponent is the interval's centre (Coulomb friction: -1, the sign of the rate); ``starting``:
-    the nominal theta (Q,), which says hardening or softening."""
+    exponent is the catalogue's (Coulomb friction: gamma -1, the sign of the rate), or the fitted
+    one for an entry with a range; ``starting``: the nominal theta (Q,), which says hardening or
+    softening."""
     texts = [f.text for f in equation.adjustments]
     laws = []
     for i, (a, g) in enumerate(zip(entry.adjustments, entry.exponents)):
         if a is None:
             continue
-        name = name_effect(equation, i, texts.index(a), g, entry.theta[i], float(starting[i]))
-        matches = [e for e in CATALOGUE if name.endswith(e.name)]
-        if matches:
-            laws.append((i, name, (matches[0].low + matches[0].high) / 2))
+        found, power = effect_entry(equation, i, texts.index(a), g, entry.theta[i], float(starting[i]))
+        if found is not None:
+            laws.append((i, found.name, g if isinstance(found.exponent, tuple) else found.exponent - power))
     return laws
 
 
@@ -69,7 +69,7 @@ def rival(equation, eq, starting: torch.Tensor) -> tuple[int, dict] | None:
     """The best-ranked candidate (rank, ranking row) whose catalogue names, at its round-robin
     exponents, differ from the winner's (names compared without hardening/softening, which needs
     each candidate's theta), or None."""
-    base = lambda names: {next(e.name for e in CATALOGUE if name.endswith(e.name)) for name in names}
+    base = lambda names: {name.replace("hardening ", "").replace("softening ", "") for name in names}
     laws = lambda entry: base(name for _, name, _ in named_laws(equation, entry, starting))
     winner = laws(eq)
     for rank, row in enumerate(eq.ranking[1:], start=1):  # rank 0 is the winner itself

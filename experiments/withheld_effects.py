@@ -121,7 +121,7 @@ def sindy_verdict(spec: ModelSpec, parameters: dict, train) -> str:
         return Verdict.NO_GAP.text()
     k = max(nonlinear, key=lambda k: contribution[k])
     i, f, g = labels[k]
-    name = name_effect(equation, i, f, g, float(coef[k]), float(theta[i]))
+    name = name_effect(equation, i, f, g, float(coef[k]), float(theta[i]), spec)
     return Verdict.NOT_EXPLAINED.text() if name == NOT_CATALOGUED else Verdict.EXPLAINED.text(name)
 
 

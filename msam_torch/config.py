@@ -70,11 +70,70 @@ class EquationConfig(_Section):
     adjustments: list[str] = Field(min_length=1, description="adjustment functions f; abs(.) -> |f|^g, else sign(f)|f|^g")
 
 
+QUANTITIES = ("position", "velocity", "acceleration", "angle", "angular_velocity", "angular_acceleration", "force",
+              "torque", "current", "voltage", "charge", "magnetic_flux", "level", "volume", "flow", "pressure",
+              "temperature", "temperature_difference", "heat_flow", "power", "concentration", "population", "dimensionless")
+
+
+def _known_quantity(name: str) -> str:
+    if name not in QUANTITIES:
+        raise ValueError(f"unknown quantity {name!r} (known: {', '.join(QUANTITIES)})")
+    return name
+
+
+Quantity = Annotated[str, AfterValidator(_known_quantity)]
+Quantities = Annotated[list[Quantity], BeforeValidator(lambda v: [v] if isinstance(v, str) else v), Field(min_length=1)]
+
+
+class SignalQuantity(_Section):
+    """What a signal is (the catalogue's roles come from it, design.md section 3); units optional."""
+
+    quantity: Quantity
+    unit: Optional[str] = None
+
+
+def _plain_quantity(value):
+    """``x: position`` is ``x: {quantity: position}``."""
+    return {"quantity": value} if isinstance(value, str) else value
+
+
+class EffectConfig(_Section):
+    """A catalogued physical effect ``theta' M |s|^gamma`` (msam_torch/diagnose/catalogue.yaml has the
+    bundled ones in the same format)."""
+
+    name: str = Field(min_length=1)
+    domain: str = Field("user", description="the domain it belongs to (bundled: the catalogue's group)")
+    acts_on: Quantities = Field(description="quantity (or quantities) whose balance the effect enters: the state "
+                                            "whose derivative the equation gives, e.g. velocity for x_ddot")
+    term: Quantities = Field(description="quantity of the component M the power law multiplies")
+    depends_on: Quantities = Field(description="quantity of the signal s in |s|^gamma")
+    form: Literal["additive", "multiplicative"] = Field(
+        description="how the effect usually enters: beside its component, or replacing it (informational: the name "
+                    "follows the total exponent)")
+    exponent: Union[Number, tuple[Number, Number]] = Field(
+        description="total exponent on the dependency (gamma plus the power of s in M), or a range [low, high]")
+    sign: Literal["any", "same", "opposite"] = Field(
+        "any", description="sign of the effect's theta relative to the starting component's")
+    description: str = Field(min_length=1, description="one line of physics")
+    reference: str = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        if isinstance(self.exponent, tuple) and not self.exponent[0] < self.exponent[1]:
+            raise ValueError(f"exponent range {list(self.exponent)} is not [low, high] with low < high")
+        return self
+
+
 class ModelConfig(_Section):
     states: list[str] = Field(min_length=1)
     inputs: list[str] = []
     parameters: dict[str, Number] = {}
     equations: list[EquationConfig] = Field(min_length=1)
+    quantities: dict[str, Annotated[SignalQuantity, BeforeValidator(_plain_quantity)]] = Field(
+        {}, description="signal -> quantity (position, velocity, angle, angular_velocity, current, voltage, level, "
+                        "flow, temperature, concentration, population, ...) or {quantity, unit}; the catalogue's "
+                        "roles come from these (a derivative of a declared position or angle is known)")
+    effects: list[EffectConfig] = Field([], description="effects added to the bundled catalogue, in its format")
 
 
 class RangeConfig(_Section):

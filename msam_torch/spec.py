@@ -7,12 +7,12 @@ expression of the named parameters (``-c/m``) or a number.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping
 
 import torch
 
-from .config import ModelConfig
+from .config import EffectConfig, ModelConfig
 from .errors import ConfigError
 from .expressions import Expression, parse
 
@@ -80,6 +80,8 @@ class ModelSpec:
     inputs: tuple[str, ...]
     parameters: Mapping[str, float]
     equations: tuple[Equation, ...]
+    quantities: Mapping[str, str] = field(default_factory=dict, kw_only=True)  # signal -> declared quantity
+    effects: tuple[EffectConfig, ...] = field(default=(), kw_only=True)  # the config's own catalogue entries
 
     @classmethod
     def from_config(cls, config: ModelConfig) -> "ModelSpec":
@@ -140,7 +142,12 @@ class ModelSpec:
             if not any(c.adjustable for c in components):
                 raise ConfigError(f"{key}.components", "no component is adjustable")
             equations.append(Equation(eq.target, components, adjustments))
-        return cls(tuple(config.states), tuple(config.inputs), dict(config.parameters), tuple(equations))
+        for name in config.quantities:
+            if name not in signals - {"t"}:
+                raise ConfigError(f"model.quantities.{name}", f"{name!r} is not a state, an input or a derivative of one")
+        quantities = {name: q.quantity for name, q in config.quantities.items()}
+        return cls(tuple(config.states), tuple(config.inputs), dict(config.parameters), tuple(equations),
+                   quantities=quantities, effects=tuple(config.effects))
 
     def theta(self, equation: Equation, parameters: Mapping[str, float] | None = None) -> torch.Tensor:
         """Nominal theta of every component of ``equation`` (float64, shape (Q,))."""

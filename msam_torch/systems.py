@@ -192,6 +192,7 @@ def _pair(name: str, rhs: Rhs, parameters: dict, states=("x", "x_dot"), initial=
 
 _MSD_MODEL = {
     "states": ["x", "x_dot"], "inputs": ["u"], "parameters": {"m": 1.0, "c": 0.5, "k": 4.0},
+    "quantities": {"x": "position", "x_dot": "velocity", "u": "force"},
     "equations": [{"target": "x_ddot", "components": [{"term": "x_dot", "theta": "-c/m"}, {"term": "x", "theta": "-k/m"},
                                                       {"term": "u", "theta": "1/m", "adjustable": False}],
                    "adjustments": ["abs(x_dot)", "abs(x)"]}],
@@ -245,13 +246,13 @@ WITHHELD: dict[str, WithheldEffect] = {
                                         "power-law damping", "in_catalogue"),
     "vdp_from_linear": WithheldEffect(
         "vdp_from_linear", "vdp_from_linear_heldout",
-        {"states": ["x", "x_dot"], "parameters": {"mu": 1.0, "w2": 1.0},
+        {"states": ["x", "x_dot"], "parameters": {"mu": 1.0, "w2": 1.0}, "quantities": {"x": "position"},
          "equations": [{"target": "x_ddot", "components": [{"term": "x_dot", "theta": "mu"}, {"term": "x", "theta": "-w2"}],
                         "adjustments": ["abs(x_dot)", "abs(x)"]}]},
         "van der Pol-type damping", "in_catalogue"),
     "tank_torricelli": WithheldEffect(
         "tank_torricelli", "tank_torricelli_heldout",
-        {"states": ["h"], "inputs": ["u"], "parameters": {"A": 1.0, "a": 0.25},
+        {"states": ["h"], "inputs": ["u"], "parameters": {"A": 1.0, "a": 0.25}, "quantities": {"h": "level", "u": "flow"},
          "equations": [{"target": "h_dot", "components": [{"term": "h", "theta": "-a/A"},
                                                           {"term": "u", "theta": "1/A", "adjustable": False}],
                         "adjustments": ["abs(h)"]}]},

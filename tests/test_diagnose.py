@@ -66,7 +66,9 @@ def test_catalogue_names_by_role_and_exponent():
     assert name_effect(eq, 1, 1, 2.0, -1.0, -4.0) == "hardening cubic stiffness"
     assert name_effect(eq, 1, 1, 2.0, 1.0, -4.0) == "softening cubic stiffness"
     assert name_effect(eq, 0, 1, 2.0, -1.0, -0.5) == "van der Pol-type damping"
-    assert name_effect(eq, 0, 0, -0.5, -1.0, -0.5) == NOT_CATALOGUED
+    assert name_effect(eq, 0, 0, -0.3, -1.0, -0.5) == "power-law damping"  # total exponent 0.7 on x_dot
+    assert name_effect(eq, 0, 0, -0.7, -1.0, -0.5) == NOT_CATALOGUED  # 0.3: neither Coulomb (0 +- 0.2) nor a damping law
+    assert name_effect(eq, 0, 0, 1.5, -1.0, -0.5) == NOT_CATALOGUED  # total 2.5: beyond drag's 2 +- 0.2
     assert name_effect(eq, 1, 0, 1.0, -1.0, -4.0) == NOT_CATALOGUED
 
 

@@ -5,10 +5,10 @@ shrinks (``msam diagnose``; design.md section 3).
 ``gap_report.json`` and ``report.md`` with PNG plots; ``GapReport.verdict_kind`` is a
 :class:`Verdict`.
 """
-from .catalogue import CATALOGUE, NOT_CATALOGUED
+from .catalogue import NOT_CATALOGUED, entries
 from .core import diagnose
 from .options import DiagnoseOptions
 from .report import EquationGap, GapReport
 from .verdict import Verdict
 
-__all__ = ["diagnose", "DiagnoseOptions", "GapReport", "EquationGap", "Verdict", "CATALOGUE", "NOT_CATALOGUED"]
+__all__ = ["diagnose", "DiagnoseOptions", "GapReport", "EquationGap", "Verdict", "entries", "NOT_CATALOGUED"]

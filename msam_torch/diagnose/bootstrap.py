@@ -9,7 +9,7 @@ import torch
 
 from ..candidates import EquationData
 from ..step import StepOptions
-from .hypotheses import Fitted, fit, heldout_rmse
+from .hypotheses import Fitted, fit, heldout_rmse, sane
 from .options import DiagnoseOptions
 from .weak import WeakForm
 
@@ -39,7 +39,8 @@ def bootstrap(weak: WeakForm, choices: torch.Tensor, original: Fitted, rmse: tor
     """``options.bootstrap`` trials (None for none): row weights from :func:`block_weights`, target
     noise of the measured signal's level ``noise`` integrated against the order-``order`` test
     function; the re-fitted start and the ``options.bootstrap_hypotheses`` best valid effect
-    hypotheses (by held-out ``rmse``, (C,)) re-fitted with ``options.bootstrap_steps`` steps."""
+    hypotheses (by held-out ``rmse``, (C,)) whose exponents are sane (the ones that can be named)
+    re-fitted with ``options.bootstrap_steps`` steps."""
     if options.bootstrap <= 0:
         return None
     t = weak.signals["t"]
@@ -47,7 +48,8 @@ def bootstrap(weak: WeakForm, choices: torch.Tensor, original: Fitted, rmse: tor
     row_noise = noise * float(torch.linalg.vector_norm(weak.tests.kernels[order]))
     jitter = row_noise * torch.randn(options.bootstrap, weak.rows, generator=generator, dtype=t.dtype).to(t.device)
     data = weak.weighted(weights, jitter)
-    effects = [int(c) for c in torch.argsort(rmse) if c != 0 and torch.isfinite(rmse[c])]
+    is_sane = sane(original)[0]
+    effects = [int(c) for c in torch.argsort(rmse) if c != 0 and torch.isfinite(rmse[c]) and is_sane[c]]
     keep = torch.tensor([0] + effects[:options.bootstrap_hypotheses], device=t.device)
     part = fit(data, choices[keep], original.gamma[:, keep], step_options, options.bootstrap_steps)
     boot_rmse = torch.full((options.bootstrap, choices.shape[0]), torch.inf, dtype=t.dtype, device=t.device)

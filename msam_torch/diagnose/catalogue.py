@@ -1,99 +1,155 @@
-"""The effect catalogue: map a selected adjustment to a named physical effect (design.md section 3).
+"""The effect catalogue (design.md section 3): physical effects as data (``catalogue.yaml`` in this
+package, plus a config's ``model.effects``), and the roles of a model's signals.
 
-An effect term is ``theta * M * |s|^gamma`` (``abs(s)`` adjustment) added to a state equation
-(additive: a copy of component ``M``) or replacing ``M`` (multiplicative). Signal roles come from
-the spec's naming alone: in an equation for the ``k``-th derivative of ``x``, ``x`` differentiated
-``k - 1`` times is the *rate* (velocity in a force balance, the level in a balance of flows when
-``k = 1``) and ``k - 2`` times the *displacement*. An entry matches when roles agree and the
-exponent is within its interval; anything else is "power law, no catalogued effect". A fitted
-exponent just outside an interval (noise biases exponents, design.md section 3) still takes the
-name when the exponent *snapped* to the interval keeps most of the improvement (see
-:mod:`msam_torch.diagnose.naming`).
-
-| effect | term | exponent gamma |
-|---|---|---|
-| Coulomb friction | rate * abs(rate)^gamma (k >= 2) | -1 +- 0.2 (sign of the rate) |
-| power-law damping | rate * abs(rate)^gamma (k >= 2) | 0.25 .. 0.75 |
-| quadratic drag | rate * abs(rate)^gamma (k >= 2) | 1 +- 0.2 |
-| hardening / softening cubic stiffness | displacement * abs(displacement)^gamma | 2 +- 0.2; hardening when theta has the sign of the starting stiffness |
-| van der Pol-type damping | rate * abs(displacement)^gamma | 2 +- 0.2 |
-| Torricelli outflow | level * abs(level)^gamma (k = 1) | -0.5 +- 0.2 (square root of the level) |
+An effect term is ``theta' * M * |s|^gamma`` in the equation of a state's derivative. Its *total
+exponent* on ``s`` is ``gamma`` plus the power of ``s`` in ``M`` (``v|v|^-1``: 0, Coulomb friction;
+``c v|v|^-0.3``: 0.7). An entry fits when the quantities agree (what the equation balances, what
+``M`` is, what ``s`` is) and the total exponent is in reach (:func:`match`). Quantities come from
+the config's ``model.quantities``; a derivative of a declared position or angle (or charge, volume)
+is known. Undeclared signals have no quantity, except in a second-order equation whose signals are
+all undeclared: there the state is *assumed* a position and its rate a velocity, and the report
+says so. Names never come from variable names.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
+from importlib.resources import files
 
-from ..spec import Equation, split_derivative
+import yaml
+from pydantic import BaseModel, ConfigDict
+
+from ..config import EffectConfig, validate
+from ..expressions import Expression
+from ..spec import Equation, ModelSpec, derivative_name, split_derivative
 
 NOT_CATALOGUED = "power law, no catalogued effect"
-TOLERANCE = 0.2
+TOLERANCE = 0.2  # the catalogue's resolution: the least half-width of an exponent interval
+RATE_OF = {"position": "velocity", "velocity": "acceleration", "angle": "angular_velocity",
+           "angular_velocity": "angular_acceleration", "charge": "current", "volume": "flow"}
+ASSUMED = {0: "position", 1: "velocity"}  # second-order equations with nothing declared
+
+
+class _CatalogueFile(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    domains: dict[str, list[EffectConfig]]
+
+
+@cache
+def bundled() -> tuple[EffectConfig, ...]:
+    """The package's catalogue, each entry with the domain it is listed under."""
+    raw = yaml.safe_load(files(__package__).joinpath("catalogue.yaml").read_text())
+    parsed = validate(_CatalogueFile, raw, "msam_torch/diagnose/catalogue.yaml")
+    return tuple(e.model_copy(update={"domain": d}) for d, entries in parsed.domains.items() for e in entries)
+
+
+def entries(spec: ModelSpec | None = None) -> tuple[EffectConfig, ...]:
+    """The bundled catalogue and the config's own effects."""
+    return bundled() + (spec.effects if spec is not None else ())
+
+
+def catalogue_exponent(entry: EffectConfig) -> float | list[float]:
+    return list(entry.exponent) if isinstance(entry.exponent, tuple) else float(entry.exponent)
 
 
 @dataclass(frozen=True)
-class Entry:
-    name: str
-    term: str  # role of M: 'rate', 'displacement', 'level'
-    function: str  # role of the adjusted signal
-    low: float
-    high: float
-    orders: tuple[int, ...]  # target derivative orders the entry applies to
+class Roles:
+    """The quantity of each signal of one equation, and those assumed rather than declared."""
 
-    def matches(self, term_role: str, function_role: str, gamma: float, order: int) -> bool:
-        return (term_role == self.term and function_role == self.function and order in self.orders
-                and self.low <= gamma <= self.high)
+    quantities: dict
+    assumed: dict
+
+    def of(self, signal: str) -> str | None:
+        return self.quantities.get(signal)
+
+    @classmethod
+    def of_equation(cls, spec: ModelSpec | None, equation: Equation) -> "Roles":
+        declared = dict(spec.quantities) if spec is not None else {}
+        known = dict(declared)
+        for name in sorted(equation.signals):
+            base, order = split_derivative(name)
+            q = declared.get(base)
+            for _ in range(order):
+                q = RATE_OF.get(q) if q is not None else None
+            if name not in known and q is not None:
+                known[name] = q
+        base, order = split_derivative(equation.target)
+        assumed = {}
+        if order == 2 and not any(s in declared for s in equation.signals):
+            assumed = {derivative_name(base, k): q for k, q in ASSUMED.items()}
+        return cls({**known, **assumed}, assumed)
 
 
-CATALOGUE: tuple[Entry, ...] = (
-    Entry("Coulomb friction", "rate", "rate", -1 - TOLERANCE, -1 + TOLERANCE, (2,)),
-    Entry("power-law damping", "rate", "rate", 0.25, 0.75, (2,)),
-    Entry("quadratic drag", "rate", "rate", 1 - TOLERANCE, 1 + TOLERANCE, (2,)),
-    Entry("cubic stiffness", "displacement", "displacement", 2 - TOLERANCE, 2 + TOLERANCE, (2,)),
-    Entry("van der Pol-type damping", "rate", "displacement", 2 - TOLERANCE, 2 + TOLERANCE, (2,)),
-    Entry("Torricelli outflow", "level", "level", -0.5 - TOLERANCE, -0.5 + TOLERANCE, (1,)),
-)
+def power_in(term: Expression, signal: str) -> float | None:
+    """The power of ``signal`` in the component ``term``: 1 (the signal itself), 0 (absent), else None."""
+    if term.text == signal:
+        return 1.0
+    return 0.0 if signal not in term.names else None
 
 
-def role(equation: Equation, text: str) -> str | None:
-    """'rate', 'displacement' or 'level' of a plain signal name in ``equation``, else None."""
-    if not text.isidentifier():
-        return None
+@dataclass(frozen=True)
+class Reading:
+    """How an effect hypothesis reads in the catalogue's terms: the quantities it involves, the
+    signal ``s`` and the power of ``s`` in ``M`` (None: no catalogue entry can fit)."""
+
+    acts_on: str | None
+    term: str | None
+    depends_on: str | None
+    signal: str | None
+    power: float | None
+
+
+def read(roles: Roles, equation: Equation, component: int, function: int) -> Reading:
+    f = equation.adjustments[function]
     base, order = split_derivative(equation.target)
-    signal_base, signal_order = split_derivative(text)
-    if signal_base != base:
+    state = derivative_name(base, order - 1)
+    term = equation.components[component].term
+    signal = f.inner_text if f.is_magnitude and f.inner_text.isidentifier() else None
+    power = power_in(term, signal) if signal is not None else None
+    return Reading(roles.of(state), roles.of(term.text), roles.of(signal) if signal else None, signal, power)
+
+
+def match(catalogue: tuple[EffectConfig, ...], reading: Reading, total: float, half_width: float,
+          same_sign: bool) -> EffectConfig | None:
+    """The entry a total exponent ``total`` +- ``half_width`` names, or None.
+
+    Among entries whose quantities fit, those the fit is consistent with: a single-valued exponent
+    inside the interval, a range holding ``total`` itself. The nearest one names it (a range that
+    holds ``total`` is at distance 0); two at the same distance name nothing. An effect whose
+    component and dependency are the same quantity acts through one signal: ``s`` must be ``M``
+    (``h1 |h2|^0.5`` is no outflow law of either level). A fit whose interval holds ``gamma = 0``
+    (the component's own law, unchanged) names nothing."""
+    if reading.power is None or None in (reading.acts_on, reading.term, reading.depends_on):
         return None
-    if order == 1 and signal_order == 0:
-        return "level"
-    if order >= 2 and signal_order == order - 1:
-        return "rate"
-    if order >= 2 and signal_order == order - 2:
-        return "displacement"
-    return None
+    if (reading.term == reading.depends_on and reading.power != 1.0) or abs(total - reading.power) <= half_width:
+        return None
+    fits = [e for e in catalogue if reading.acts_on in e.acts_on and reading.term in e.term
+            and reading.depends_on in e.depends_on and e.sign in ("any", "same" if same_sign else "opposite")]
+    distance = {}
+    for e in fits:
+        if isinstance(e.exponent, tuple):
+            if e.exponent[0] <= total <= e.exponent[1]:
+                distance[e.name] = (0.0, e)
+        elif abs(e.exponent - total) <= half_width:
+            distance[e.name] = (abs(e.exponent - total), e)
+    ranked = sorted(distance.values(), key=lambda d: d[0])
+    if not ranked or (len(ranked) > 1 and ranked[1][0] == ranked[0][0]):
+        return None
+    return ranked[0][1]
 
 
-def entries_for(equation: Equation, component: int, function: int) -> list[Entry]:
-    """Catalogue entries whose roles fit ``M_component * f_function^gamma`` (any exponent)."""
-    f = equation.adjustments[function]
-    if not f.is_magnitude:
-        return []
-    term_role = role(equation, equation.components[component].term.text)
-    function_role = role(equation, f.inner_text)
-    order = split_derivative(equation.target)[1]
-    return [e for e in CATALOGUE if e.term == term_role and e.function == function_role and order in e.orders]
+def effect_entry(equation: Equation, component: int, function: int, gamma: float, theta: float,
+                 starting_theta: float, spec: ModelSpec | None = None,
+                 half_width: float = TOLERANCE) -> tuple[EffectConfig | None, float | None]:
+    """The entry naming ``theta * M_component * f_function^gamma`` read with ``spec``'s quantities
+    (none: assumed only where :class:`Roles` says), and the power of ``s`` in ``M``."""
+    reading = read(Roles.of_equation(spec, equation), equation, component, function)
+    if reading.power is None:
+        return None, None
+    return match(entries(spec), reading, gamma + reading.power, half_width, theta * starting_theta > 0), reading.power
 
 
-def name_effect(equation: Equation, component: int, function: int, gamma: float, theta: float,
-                starting_theta: float) -> str:
-    """The catalogue name of ``theta * M_component * f_function^gamma``, or :data:`NOT_CATALOGUED`."""
-    f = equation.adjustments[function]
-    if not f.is_magnitude:
-        return NOT_CATALOGUED
-    term_role = role(equation, equation.components[component].term.text)
-    function_role = role(equation, f.inner_text)
-    order = split_derivative(equation.target)[1]
-    for entry in CATALOGUE:
-        if entry.matches(term_role, function_role, gamma, order):
-            if entry.name == "cubic stiffness":
-                kind = "hardening" if theta * starting_theta > 0 else "softening"
-                return f"{kind} cubic stiffness"
-            return entry.name
-    return NOT_CATALOGUED
+def name_effect(*args, **kwargs) -> str:
+    """The name of :func:`effect_entry`'s entry, or :data:`NOT_CATALOGUED`."""
+    entry, _ = effect_entry(*args, **kwargs)
+    return NOT_CATALOGUED if entry is None else entry.name

@@ -21,7 +21,7 @@ from .estimation import Estimation
 from .hypotheses import (Fitted, Hypothesis, encode, enumerate_hypotheses, exponent, extended_equation, fit,
                          fitted_text, heldout_rmse)
 from .localise import starting_where
-from .naming import named_exponent, snapped_names
+from .naming import Naming, name_hypotheses
 from .options import DiagnoseOptions
 from .report import EquationGap
 from .structure import residual_checks, structure_left
@@ -60,23 +60,20 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     noise = float(train.info.get("noise_level", {}).get(source, 0.0) or 0.0) / estimation.decimation**0.5
     boot = bootstrap(weak, choices, original, rmse, noise, order, options, step_options, generator)
 
-    # catalogue names, exponents snapped into an entry's interval where that keeps the improvement
+    # catalogue names within each hypothesis's bootstrap interval of its total exponent
     nominal = spec.theta(equation, parameters).to(t)
-    names, snapped = snapped_names(equation, hypotheses, weak, weak.data, choices, original, rmse.unsqueeze(0),
-                                   nominal, options.snap_keep)
-    names, snapped = names[0], snapped[0]
+    named = name_hypotheses(spec, equation, hypotheses, original, boot, nominal)
+    names = named.names
 
     # null rule on the best effect; how often it wins the bootstrap trials
-    is_effect = torch.tensor([h.kind != "retuned" for h in hypotheses], device=t.device)
+    is_effect = torch.tensor([h.kind != "retuned" for h in hypotheses], device=t.device) & named.admissible
     best = int(confidence.best_effect(rmse, is_effect))
     target_rms = weak.target_rms
     is_significant = bool(confidence.significant(rmse[best], rmse[0], target_rms, options.relative, options.absolute))
     outcome = names[best] if is_significant else Verdict.NO_GAP.text()
     trial_outcomes = []
     if boot is not None:
-        boot_names, _ = snapped_names(equation, hypotheses, weak, boot.data, choices, boot.fitted, boot.rmse, nominal,
-                                      options.snap_keep)
-        trial_outcomes = confidence.outcomes(boot_names, boot.rmse, is_effect, target_rms, options)
+        trial_outcomes = confidence.outcomes([names] * boot.rmse.shape[0], boot.rmse, is_effect, target_rms, options)
     sure = confidence.summary(rmse, names, best, is_significant, outcome, trial_outcomes)
 
     # verdict (with the residual structure the effect leaves), and where the starting model fails
@@ -95,7 +92,7 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
         effect=outcome if is_significant else None,
         hypothesis=hypotheses[winner].label(equation),
         exponent=exponent(hypotheses[winner], equation, original.gamma[0, winner]),
-        catalogue_exponent=named_exponent(hypotheses[winner], equation, names[winner], snapped[winner]),
+        catalogue_exponent=named.catalogue_exponent(winner), naming=named.details[winner] if is_significant else None,
         start_equation=format_equation(equation.target, nominal.tolist(),
                                        [format_component(equation, i, None, None) for i in range(len(equation.components))]),
         retuned_equation=text(0), adapted_equation=text(winner), confidence=sure,
@@ -103,7 +100,7 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
                      "relative": float(1 - rmse[winner] / rmse[0]), "target_rms": target_rms,
                      "rule": {"relative": options.relative, "absolute": options.absolute}},
         structure_left=structure, components=_components(equation, hypotheses, rmse),
-        ranking=_ranking(equation, hypotheses, rmse, names, snapped, original, text), where=where["summary"],
+        ranking=_ranking(equation, hypotheses, rmse, names, named, original, text), where=where["summary"],
         estimator={"test_function": "bump (1-s^2)^4", "half_width": weak.tests.half_width * weak.tests.dt,
                    "half_width_samples": weak.tests.half_width, "rows": weak.rows, **estimation.info},
         checks={**checks, "reasons": reasons},
@@ -124,11 +121,11 @@ def _components(equation: Equation, hypotheses: list[Hypothesis], rmse: torch.Te
 
 
 def _ranking(equation: Equation, hypotheses: list[Hypothesis], rmse: torch.Tensor, names: list[str],
-             snapped: torch.Tensor, original: Fitted, text) -> list[dict]:
+             named: Naming, original: Fitted, text) -> list[dict]:
     """Every valid hypothesis, best held-out RMSE first."""
     ranked = [int(c) for c in torch.argsort(rmse) if torch.isfinite(rmse[c])]
     return [{"hypothesis": hypotheses[c].label(equation), "kind": hypotheses[c].kind, "effect": names[c],
              "exponent": exponent(hypotheses[c], equation, original.gamma[0, c]),
-             "catalogue_exponent": named_exponent(hypotheses[c], equation, names[c], snapped[c]),
+             "catalogue_exponent": named.catalogue_exponent(c),
              "equation": text(c), "heldout_rmse": float(rmse[c]), "improvement": float(1 - rmse[c] / rmse[0])}
             for c in ranked]

@@ -27,6 +27,7 @@ from ..step import State, StepOptions, evaluate, step
 
 ADDITIVE_STARTS = (-0.5, 0.5, 1.5)
 COLLINEAR = 0.15  # |gamma| of an additive copy below which it is a log pair of its original (rejected)
+SANE_EXPONENT = 5.0  # |gamma| beyond which a fit ran away (catalogued laws need at most 3)
 
 
 @dataclass(frozen=True)
@@ -116,6 +117,11 @@ def fit(data: EquationData, choices: torch.Tensor, start: torch.Tensor, options:
     log_pair = (copy_on & (best_gamma[..., q:].abs() < COLLINEAR)).any(-1)
     invalid = state.diverged | ~torch.isfinite(best_fitness) | log_pair
     return Fitted(best_gamma, final.theta, final.theta_fixed, best_fitness, invalid)
+
+
+def sane(fitted: Fitted) -> torch.Tensor:
+    """(T, C): every exponent within :data:`SANE_EXPONENT` (a fit beyond it ran away, not an effect)."""
+    return (fitted.gamma.abs() <= SANE_EXPONENT).all(-1)
 
 
 def predict_rows(data: EquationData, choices: torch.Tensor, fitted: Fitted) -> torch.Tensor:

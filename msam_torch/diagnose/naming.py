@@ -1,60 +1,105 @@
-"""Catalogue names of fitted hypotheses (:mod:`.catalogue`), with exponents snapped into an
-entry's interval when that keeps most of the improvement (noise biases exponents, design.md
-section 3)."""
+"""Catalogue names of fitted hypotheses (:mod:`.catalogue`), given only within confidence
+(design.md section 3).
+
+Each effect hypothesis's *total exponent* on its signal (``gamma`` plus the power of the signal in
+its component: ``c v|v|^-0.3`` is 0.7 on ``v``) gets an interval from the bootstrap trials
+(:mod:`.bootstrap`): the original fit +- two robust standard deviations (1.4826 median absolute
+deviations, so that a trial falling into another optimum does not widen it) of the trials' exponents, and
+never narrower than the catalogue's resolution +-0.2 (the trials see noise and time blocks, not
+the bias of the weak-form estimate or of a smoothed law). An entry names it only when that interval holds the
+catalogue's exponent (:func:`.catalogue.match`); nothing is moved into an interval. A hypothesis
+whose exponent leaves the sane range (:data:`.hypotheses.SANE_EXPONENT`) or never left its start
+(no step was accepted: the exponent is not estimated), or whose interval is wider than
+:data:`STABLE_HALF_WIDTH` or rests on fewer than half the trials, is not an effect.
+"""
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import torch
 
-from ..candidates import EquationData, columns
-from ..spec import Equation
-from ..step import solve_theta
+from ..spec import Equation, ModelSpec
 from . import catalogue
-from .hypotheses import Fitted, Hypothesis, predict_rows, slot
+from .bootstrap import Bootstrap
+from .hypotheses import Fitted, Hypothesis, sane, slot
 from .verdict import Verdict
-from .weak import WeakForm
+
+STABLE_HALF_WIDTH = 1.0  # an exponent known no better than +-1 is not an effect
+SPREAD = 2.0  # interval half-width in standard deviations of the trials' exponents
+MAD_TO_STD = 1.4826  # median absolute deviation -> standard deviation of a normal distribution
 
 
-def snapped_names(equation: Equation, hypotheses: list[Hypothesis], weak: WeakForm, fit_data: EquationData,
-                  choices: torch.Tensor, fitted: Fitted, rmse: torch.Tensor, nominal: torch.Tensor,
-                  keep: float) -> tuple[list[list[str]], torch.Tensor]:
-    """Catalogue names of every trial and hypothesis (T, C) and the exponents they name.
+@dataclass(frozen=True)
+class Naming:
+    """Per hypothesis (C): its name, whether it may be reported as an effect, and what the report
+    says of it (None for the re-fitted start)."""
 
-    Each effect exponent is moved to the nearest catalogued value for its signal roles, theta is
-    re-solved on ``fit_data`` (variable projection), and the name is given when the snapped model
-    keeps ``keep`` of the free exponent's held-out improvement (``rmse`` (T, C)) over the
-    re-fitted start; else 'power law, no catalogued effect'. The re-fitted start is named
-    'no significant gap'."""
-    gamma = fitted.gamma.clone()
+    names: list[str]
+    admissible: torch.Tensor
+    details: list[dict | None]
+
+    def catalogue_exponent(self, c: int) -> float | list[float] | None:
+        return None if self.details[c] is None else self.details[c]["catalogue_exponent"]
+
+
+def half_width(boot: Bootstrap | None, c: int, s: int) -> float:
+    """Two robust standard deviations of hypothesis ``c``'s exponent in slot ``s`` over the trials that
+    re-fitted it, at least the catalogue's tolerance (inf when fewer than half did)."""
+    if boot is None:
+        return catalogue.TOLERANCE
+    valid = ~boot.fitted.invalid[:, c] & torch.isfinite(boot.rmse[:, c])
+    if 2 * int(valid.sum()) < valid.numel() or int(valid.sum()) < 2:
+        return float("inf")
+    g = boot.fitted.gamma[valid, c, s]
+    robust_std = MAD_TO_STD * float((g - g.median()).abs().median())
+    return max(SPREAD * robust_std, catalogue.TOLERANCE)
+
+
+def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypothesis], original: Fitted,
+                    boot: Bootstrap | None, nominal: torch.Tensor) -> Naming:
+    """Names, admissibility and report details of every hypothesis; ``nominal``: the starting
+    theta (Q,), whose sign says hardening or softening."""
+    roles = catalogue.Roles.of_equation(spec, equation)
+    entries = catalogue.entries(spec)
+    is_sane = sane(original)[0]
+    names, admissible, details = [], [], []
     for c, h in enumerate(hypotheses):
-        entries = [] if h.kind == "retuned" else catalogue.entries_for(equation, h.component, h.function)
-        if entries:
-            g = gamma[:, c, slot(equation, h)]
-            options = torch.stack([g.clamp(e.low, e.high) for e in entries], -1)
-            nearest = (options - g.unsqueeze(-1)).abs().argmin(-1, keepdim=True)
-            gamma[:, c, slot(equation, h)] = options.gather(-1, nearest).squeeze(-1)
-    selection = fit_data.select(choices)
-    theta, theta_fixed = solve_theta(selection, columns(selection, gamma))
-    moved = Fitted(gamma, theta, theta_fixed, fitted.fitness, fitted.invalid)
-    yhat = predict_rows(weak.val_data, choices, moved)[..., weak.val_rows]
-    snapped_rmse = torch.sqrt(((yhat - weak.y_val) ** 2).mean(-1))
-    kept = (rmse[:, :1] - snapped_rmse) >= keep * (rmse[:, :1] - rmse)
-    names = []
-    for k in range(gamma.shape[0]):
-        row = []
-        for c, h in enumerate(hypotheses):
-            if h.kind == "retuned":
-                row.append(Verdict.NO_GAP.text())
-                continue
-            s = slot(equation, h)
-            named = catalogue.name_effect(equation, h.component, h.function, float(gamma[k, c, s]),
-                                          float(theta[k, c, s]), float(nominal[h.component]))
-            row.append(named if bool(kept[k, c]) else catalogue.NOT_CATALOGUED)
-        names.append(row)
-    return names, gamma
+        if h.kind == "retuned":
+            names.append(Verdict.NO_GAP.text()), admissible.append(True), details.append(None)
+            continue
+        s = slot(equation, h)
+        reading = catalogue.read(roles, equation, h.component, h.function)
+        gamma = float(original.gamma[0, c, s])
+        total = gamma + (reading.power or 0.0)
+        half = half_width(boot, c, s)
+        moved = gamma != h.start
+        ok = bool(is_sane[c]) and moved and half <= STABLE_HALF_WIDTH
+        same_sign = h.kind == "multiplicative" or float(original.theta[0, c, s]) * float(nominal[h.component]) > 0
+        entry = catalogue.match(entries, reading, total, half, same_sign) if ok else None
+        names.append(catalogue.NOT_CATALOGUED if entry is None else entry.name)
+        admissible.append(ok)
+        details.append(_details(entry, reading, roles, total, half, ok))
+    return Naming(names, torch.tensor(admissible, device=original.gamma.device), details)
 
 
-def named_exponent(h: Hypothesis, equation: Equation, name: str, gamma: torch.Tensor) -> float | None:
-    """The exponent a catalogue name refers to (the fitted one moved into the entry's interval)."""
-    if h.kind == "retuned" or name in (Verdict.NO_GAP.text(), catalogue.NOT_CATALOGUED):
-        return None
-    return float(gamma[slot(equation, h)])
+def _details(entry, reading: catalogue.Reading, roles: catalogue.Roles, total: float, half: float, ok: bool) -> dict:
+    """What the report says of one hypothesis's name (see :class:`~.report.EquationGap`)."""
+    on = reading.signal or "its adjustment"
+    measured = f"exponent {total:.2f} ± {half:.2f} on {on}"
+    if entry is not None:
+        value = catalogue.catalogue_exponent(entry)
+        text = f"{entry.name} ({entry.domain}): total {measured}, catalogue {value}"
+    elif not ok:
+        text = f"power law, {measured}: not an effect (exponent out of range or unstable under the bootstrap)"
+    elif None in (reading.acts_on, reading.term, reading.depends_on):
+        text = f"power law, {measured} (no catalogued effect: quantities not declared, see model.quantities)"
+    else:
+        text = f"power law, {measured} (no catalogued effect)"
+    return {"effect": None if entry is None else entry.name, "text": text, "total_exponent": total,
+            "half_width": half, "on": reading.signal,
+            "catalogue_exponent": None if entry is None else catalogue.catalogue_exponent(entry),
+            "domain": None if entry is None else entry.domain,
+            "description": None if entry is None else entry.description,
+            "reference": None if entry is None else entry.reference,
+            "quantities": {"acts_on": reading.acts_on, "term": reading.term, "depends_on": reading.depends_on},
+            "assumed_quantities": dict(roles.assumed)}

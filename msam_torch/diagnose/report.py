@@ -28,8 +28,12 @@ class EquationGap:
     significant gap' or 'gap not explained by the candidate set'); ``effect``: the
     catalogue name of the best hypothesis (or 'power law, no catalogued effect'), None without a
     gap; ``hypothesis``/``exponent``: the winning hypothesis and its fitted exponent;
-    ``catalogue_exponent``: the exponent the name refers to (the fitted one moved into the
-    catalogue interval, when that keeps most of the improvement), else None; ``*_equation``: the
+    ``catalogue_exponent``: the catalogue's total exponent of the named effect (a number, or
+    [low, high] for a range; msam_torch/diagnose/catalogue.yaml), else None; ``naming``: for a
+    significant gap, how the best hypothesis reads in the catalogue (:mod:`.naming`): ``text``,
+    ``total_exponent`` +- ``half_width`` (bootstrap) ``on`` its signal, the entry's ``domain``,
+    ``description`` and ``reference``, the ``quantities`` involved and the ``assumed_quantities``
+    (undeclared, :mod:`.catalogue`); ``*_equation``: the
     starting, theta-retuned and adapted equations; ``confidence``: ``margin`` (held-out RMSE of
     the best hypothesis with another name, relative), ``runner_up``, ``win_frequency`` over
     ``bootstrap_trials`` and the ``outcomes`` counted; ``improvement``: held-out weak-form RMSE of
@@ -46,7 +50,7 @@ class EquationGap:
     effect: str | None
     hypothesis: str
     exponent: float | None
-    catalogue_exponent: float | None
+    catalogue_exponent: float | list | None
     start_equation: str
     retuned_equation: str
     adapted_equation: str
@@ -58,6 +62,7 @@ class EquationGap:
     where: dict
     estimator: dict
     checks: dict = field(default_factory=dict)  # residual checks of "no significant gap" and the reasons
+    naming: dict | None = None
 
     @property
     def verdict(self) -> str:
@@ -87,7 +92,7 @@ class GapReport:
             c = g.confidence
             lines.append(f"{g.target}: {g.verdict}")
             if g.significant:
-                named = "" if g.catalogue_exponent is None else f" (catalogue {g.catalogue_exponent:.3f})"
+                named = "" if g.naming is None else f"; {g.naming['text']}"
                 boot = (f"; bootstrap wins {100 * c['win_frequency']:.0f} % of {c['bootstrap_trials']}, {_margin(c)}"
                         if c["bootstrap_trials"] else "")
                 lines.append(f"  best: {g.hypothesis} ({g.effect}), exponent {g.exponent:.3f}{named}; "
@@ -147,10 +152,11 @@ def write_markdown(report: GapReport, out: Path, plots: bool = True) -> Path:
                f"- theta re-fitted: `{g.retuned_equation}`", f"- adapted model: `{g.adapted_equation}`"]
         if g.significant:
             c = g.confidence
-            md += [f"- which: {g.effect} ({g.hypothesis}, exponent {g.exponent:.3f})",
-                   f"- confidence: wins {100 * c['win_frequency']:.0f} % of {c['bootstrap_trials']} bootstrap trials "
-                   f"(time blocks and noise); {_margin(c)} (held-out RMSE); residual structure left "
-                   f"{100 * g.structure_left:.0f} %"]
+            md += [f"- which: {g.effect} ({g.hypothesis}, exponent {g.exponent:.3f})"]
+            md += _named(g.naming) if g.naming else []
+            md += [f"- confidence: wins {100 * c['win_frequency']:.0f} % of {c['bootstrap_trials']} bootstrap trials "
+                    f"(time blocks and noise); {_margin(c)} (held-out RMSE); residual structure left "
+                    f"{100 * g.structure_left:.0f} %"]
         md += ["", "### Where", "", f"{100 * g.where['flagged_fraction']:.0f} % of the record flagged.", "",
                "| region (best rule per signal) | share of the record | squared residual removed by a separate fit |",
                "|---|---|---|"]
@@ -199,6 +205,18 @@ def write_markdown(report: GapReport, out: Path, plots: bool = True) -> Path:
             md += [f"![free run {label}]({name})", ""]
     md += [f"_Computed in {report.seconds:.2f} s._", ""]
     return write_atomic(out / "report.md", "\n".join(md))
+
+
+def _named(naming: dict) -> list[str]:
+    """The catalogue's reading of the best hypothesis: exponent interval, domain, physics, reference,
+    and the quantities assumed rather than declared."""
+    lines = [f"- catalogue: {naming['text']}"]
+    if naming["effect"]:
+        lines.append(f"- physics: {naming['description']} (reference: {naming['reference']})")
+    if naming["assumed_quantities"]:
+        assumed = ", ".join(f"{s} as {q}" for s, q in naming["assumed_quantities"].items())
+        lines.append(f"- assumed quantities (not declared in model.quantities): {assumed}")
+    return lines
 
 
 def _simulated_which(g: EquationGap) -> list[str]:

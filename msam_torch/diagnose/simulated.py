@@ -85,8 +85,10 @@ def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retu
     adapted models (the group's, shared by its equations)."""
     index = [i for i, a in enumerate(adapted.adjustments) if a is not None]
     texts = [f.text for f in eq.adjustments]
-    names = {i: catalogue.name_effect(eq, i, texts.index(adapted.adjustments[i]), adapted.exponents[i],
-                                      adapted.theta[i], start_theta[i]) for i in index}
+    spec = ModelSpec.from_config(plan.config.model)
+    found = {i: catalogue.effect_entry(eq, i, texts.index(adapted.adjustments[i]), adapted.exponents[i],
+                                       adapted.theta[i], start_theta[i], spec)[0] for i in index}
+    names = {i: catalogue.NOT_CATALOGUED if e is None else e.name for i, e in found.items()}
     known = [i for i in index if names[i] != catalogue.NOT_CATALOGUED]
     shown = known[0] if known else (index[0] if index else None)
     effect = names[shown] if significant and shown is not None else None
@@ -101,7 +103,7 @@ def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retu
     return EquationGap(
         target=eq.target, significant=significant, verdict_kind=kind, effect=effect,
         hypothesis=label(shown) if shown is not None else "none", exponent=adapted.exponents[shown] if shown is not None else None,
-        catalogue_exponent=adapted.exponents[shown] if effect not in (None, catalogue.NOT_CATALOGUED) else None,
+        catalogue_exponent=catalogue.catalogue_exponent(found[shown]) if effect not in (None, catalogue.NOT_CATALOGUED) else None,
         start_equation=format_equation(eq.target, list(start_theta), terms),
         retuned_equation=format_equation(eq.target, list(retuned), terms), adapted_equation=adapted.equation,
         confidence={"margin": float("nan"), "runner_up": None, "win_frequency": float("nan"), "bootstrap_trials": 0,

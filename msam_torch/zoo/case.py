@@ -232,7 +232,7 @@ def _config(rng, system: System, scale: dict, measured: list) -> tuple[dict, dic
             components.append({"term": term, "theta": name, **({"adjustable": False} if driven else {})})
         equations.append({"target": eq.target, "components": components, "adjustments": adjustments})
     config = {"model": {"states": list(system.states), "inputs": list(system.inputs), "parameters": parameters,
-                        "equations": equations},
+                        "equations": equations, "quantities": dict(system.quantities)},
               "data": {"file": "train.csv", "validation_file": "validation.csv", "time": "t", "derivatives": "savgol",
                        "columns": {s: s for s in measured + list(system.inputs)}}}
     return config, true_theta

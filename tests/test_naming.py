@@ -1,0 +1,145 @@
+"""Effects named from declared quantities, within the bootstrap interval of the total exponent
+(msam_torch.diagnose.catalogue, .naming): first-order speed, population and thermal equations;
+no name without declared quantities; a config's own effect; power-law damping of total exponent
+0.7; config errors naming the key."""
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.integrate import solve_ivp
+
+from msam_torch.config import load_config
+from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
+from msam_torch.diagnose.catalogue import bundled
+from msam_torch.errors import ConfigError
+from msam_torch.spec import ModelSpec
+
+OPTIONS = DiagnoseOptions(bootstrap=8, free_run=False)
+
+
+def multisine(freqs, amplitude, offset=0.0, phase=0.0):
+    return lambda t: offset + amplitude * sum(np.sin(2 * np.pi * f * t + phase + k) for k, f in enumerate(freqs))
+
+
+def record(rhs, y0, t, inputs: dict, states: list) -> pd.DataFrame:
+    """The truth sampled at ``t`` (solve_ivp, tight tolerances): states and inputs as columns."""
+    solution = solve_ivp(lambda s, y: rhs(s, y, {k: u(s) for k, u in inputs.items()}), (t[0], t[-1]), y0,
+                         t_eval=t, rtol=1e-10, atol=1e-12, method="LSODA")
+    return pd.DataFrame({"t": t, **dict(zip(states, solution.y)), **{k: u(t) for k, u in inputs.items()}})
+
+
+def run(model: dict, frames, declare: dict | None):
+    model = {**model, **({"quantities": declare} if declare else {})}
+    columns = {c: c for c in frames[0].columns if c != "t"}
+    config = {"model": model, "data": {"time": "t", "derivatives": "savgol", "columns": columns}}
+    return diagnose(config, data=frames[0], validation=frames[1], options=OPTIONS).equations[0]
+
+
+T = np.linspace(0.0, 40.0, 2001)
+
+
+def drive():
+    """``J w' = K i - b w - Fc sign(w)``: a motor's speed under a measured current that reverses."""
+    rhs = lambda t, y, u: [2.0 * u["i"] - 0.5 * y[0] - 1.0 * np.tanh(y[0] / 0.01)]
+    frames = [record(rhs, [0.0], T, {"i": multisine((0.05, 0.13, 0.31), 1.2, phase=p)}, ["w"]) for p in (0.0, 1.0)]
+    model = {"states": ["w"], "inputs": ["i"], "parameters": {"kt": 1.8, "b": 0.6},
+             "equations": [{"target": "w_dot", "components": [{"term": "i", "theta": "kt", "adjustable": False},
+                                                               {"term": "w", "theta": "-b"}],
+                            "adjustments": ["abs(w)"]}]}
+    return model, frames, {"w": "angular_velocity", "i": "current"}
+
+
+def population():
+    """``N' = r N (1 - N/K) - h N``: logistic growth under a measured harvesting rate."""
+    rhs = lambda t, y, u: [0.6 * y[0] * (1 - y[0] / 1000.0) - u["h"] * y[0]]
+    frames = [record(rhs, [n0], T, {"h": multisine((0.04, 0.11), 0.1, 0.2, phase=p)}, ["N"])
+              for n0, p in ((50.0, 0.0), (1400.0, 1.0))]
+    model = {"states": ["N"], "inputs": ["h"], "parameters": {"r": 0.5},
+             "equations": [{"target": "N_dot", "components": [{"term": "N", "theta": "r"},
+                                                               {"term": "N*h", "theta": -1.0, "adjustable": False}],
+                            "adjustments": ["abs(N)"]}]}
+    return model, frames, {"N": "population", "h": "dimensionless"}
+
+
+def heated_body():
+    """``C T' = u - hA (T - Ta) - eps sigma A (T^4 - Ta^4)``, ambient Ta measured; the starting
+    model's constant term takes up the ambient's radiation (nearly constant)."""
+    rhs = lambda t, y, u: [(u["u"] - 2.0 * (y[0] - u["Ta"]) - 2e-8 * (y[0] ** 4 - u["Ta"] ** 4)) / 20.0]
+    inputs = lambda p: {"u": multisine((0.01, 0.023, 0.05), 300.0, 900.0, phase=p), "Ta": multisine((0.02,), 3.0, 295.0)}
+    frames = [record(rhs, [500.0], np.linspace(0.0, 400.0, 2001), inputs(p), ["T"]) for p in (0.0, 1.0)]
+    model = {"states": ["T"], "inputs": ["u", "Ta"], "parameters": {"h": 0.12, "c": 0.05},
+             "equations": [{"target": "T_dot", "components": [{"term": "T", "theta": "-h"},
+                                                               {"term": "Ta", "theta": "h", "adjustable": False},
+                                                               {"term": "u", "theta": "c", "adjustable": False},
+                                                               {"term": "1", "theta": 0.0, "adjustable": False}],
+                            "adjustments": ["abs(T)"]}]}
+    return model, frames, {"T": "temperature", "Ta": "temperature", "u": "power"}
+
+
+@pytest.mark.parametrize("case, name, total", [(drive, "Coulomb friction", 0.0),
+                                               (population, "logistic self-limitation", 2.0),
+                                               (heated_body, "radiation", 4.0)])
+def test_named_from_declared_quantities_and_never_wrong_without(case, name, total):
+    model, frames, quantities = case()
+    gap = run(model, frames, quantities)
+    assert gap.verdict_kind is Verdict.EXPLAINED and gap.effect == name, gap.naming
+    assert gap.catalogue_exponent == total
+    n = gap.naming
+    assert abs(n["total_exponent"] - total) <= n["half_width"] and n["half_width"] < 1.0
+    assert n["domain"] and n["description"] and n["reference"] and not n["assumed_quantities"]
+    bare = run(model, frames, None)
+    assert bare.verdict_kind is not Verdict.EXPLAINED and bare.effect in (None, "power law, no catalogued effect")
+
+
+def test_power_law_damping_of_total_exponent_0_7_reported_with_its_interval():
+    """``c v|v|^-0.3`` replacing viscous damping: power-law damping, total exponent 0.7 on x_dot."""
+    rhs = lambda t, y, u: [y[1], u["u"] - 0.5 * y[1] * np.abs(y[1]) ** -0.3 - 4.0 * y[0]]
+    frames = [record(rhs, [0.0, 0.3], T, {"u": multisine((0.11, 0.27, 0.43), 1.0, phase=p)}, ["x"]) for p in (0.0, 1.0)]
+    model = {"states": ["x", "x_dot"], "inputs": ["u"], "parameters": {"c": 0.6, "k": 3.6},
+             "equations": [{"target": "x_ddot", "components": [{"term": "x_dot", "theta": "-c"}, {"term": "x", "theta": "-k"},
+                                                                {"term": "u", "theta": 1.0, "adjustable": False}],
+                            "adjustments": ["abs(x_dot)", "abs(x)"]}]}
+    gap = run(model, frames, {"x": "position", "u": "force"})
+    assert gap.verdict_kind is Verdict.EXPLAINED and gap.effect == "power-law damping"
+    assert gap.naming["total_exponent"] == pytest.approx(0.7, abs=0.1)
+    assert gap.catalogue_exponent == [0.5, 1.8]
+    assert "± " in gap.naming["text"] and "on x_dot" in gap.naming["text"]
+
+
+EVAPORATION = {"name": "evaporation", "domain": "hydraulic", "acts_on": "volume", "term": "volume",
+               "depends_on": "volume", "form": "multiplicative", "exponent": 0.6667,
+               "description": "a pool losing water through its surface, area ~ V^(2/3)", "reference": "test"}
+
+
+def test_a_config_effect_is_named_like_a_bundled_one():
+    rhs = lambda t, y, u: [u["q"] - 0.3 * y[0] ** (2 / 3)]
+    frames = [record(rhs, [v0], T, {"q": multisine((0.05, 0.12), 0.3, 1.2, phase=p)}, ["V"]) for v0, p in ((5.0, 0), (12.0, 1))]
+    model = {"states": ["V"], "inputs": ["q"], "parameters": {"k": 0.1}, "effects": [EVAPORATION],
+             "equations": [{"target": "V_dot", "components": [{"term": "V", "theta": "-k"},
+                                                               {"term": "q", "theta": 1.0, "adjustable": False}],
+                            "adjustments": ["abs(V)"]}]}
+    gap = run(model, frames, {"V": "volume", "q": "flow"})
+    assert gap.effect == "evaporation" and gap.naming["domain"] == "hydraulic"
+    assert gap.naming["total_exponent"] == pytest.approx(2 / 3, abs=0.1)
+
+
+MODEL = {"states": ["x"], "equations": [{"target": "x_dot", "components": [{"term": "x", "theta": -1}],
+                                         "adjustments": ["abs(x)"]}]}
+
+
+@pytest.mark.parametrize("extra, key", [
+    ({"quantities": {"x": "lenght"}}, "model.quantities.x.quantity"),
+    ({"quantities": {"y": "position"}}, "model.quantities.y"),
+    ({"effects": [{**EVAPORATION, "reference": None}]}, "model.effects[0].reference"),
+    ({"effects": [{**EVAPORATION, "depends_on": "volumes"}]}, "model.effects[0].depends_on[0]"),
+    ({"effects": [{**EVAPORATION, "exponent": [2, 1]}]}, "model.effects[0]"),
+])
+def test_config_errors_name_the_key(extra, key):
+    with pytest.raises(ConfigError) as error:
+        ModelSpec.from_config(load_config({"model": {**MODEL, **extra}}).model)
+    assert str(error.value).startswith(key + ":") or str(error.value).startswith(key + " "), str(error.value)
+
+
+def test_bundled_catalogue_covers_the_domains():
+    domains = {e.domain for e in bundled()}
+    assert {"mechanical", "electrical", "hydraulic", "thermal", "population_kinetics"} <= domains
+    assert len({e.name for e in bundled()}) == len(bundled()) >= 15
