@@ -56,12 +56,13 @@ def test_naive_configs_hold_only_the_starting_physics(name):
 
 
 def test_naive_emps_diagnosis_runs_on_a_slice():
-    """Coulomb friction named on the first 10 s of the estimation record, held out on the
-    validation pulses (estimation chosen from the record: 60 % held-out improvement, margin 4 %)."""
+    """The first 10 s of the estimation record, held out on the validation pulses: a friction
+    copy of the viscous term with a 60 % held-out improvement. Its total exponent -0.12 +- 0.20 (4
+    trials) lies in the Stribeck-like range, which names it, though Coulomb's 0 is inside too."""
     report = diagnose(CONFIGS / "emps_naive.yaml", overrides=["data.train.stop=10"],
                       options=DiagnoseOptions(bootstrap=4, free_run=False))
     (gap,) = report.equations
-    assert gap.effect == "Coulomb friction" and gap.exponent == pytest.approx(-1.118, abs=0.03)
+    assert gap.effect == "Stribeck-like power-law friction" and gap.exponent == pytest.approx(-1.118, abs=0.03)
     assert gap.improvement["relative"] == pytest.approx(0.604, abs=0.03)
     assert gap.confidence["margin"] > 0.02
 
