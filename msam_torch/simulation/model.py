@@ -136,6 +136,7 @@ class SystemModel:
         gamma = torch.cat([p.gamma, torch.zeros_like(p.theta_fixed)], -1)
         theta = torch.cat([p.theta, p.theta_fixed], -1)
         inverse_scale = torch.nn.functional.pad(1.0 / p.scale, (0, 1), value=1.0)
+        scaled = not bool((p.scale == 1).all())
         magnitude = torch.tensor([f.is_magnitude for f in self.functions] + [True], device=device)
         signed = not bool(magnitude.all())
         bound: dict = {}  # the constants per batch shape
@@ -143,14 +144,15 @@ class SystemModel:
         def constants(shape):
             if shape not in bound:
                 rows = (lambda v: v) if len(shape) == 1 else (lambda v: v.view(v.shape[:1] + (1,) * (len(shape) - 1) + v.shape[1:]))
-                bound[shape] = (rows(choice).expand(shape + choice.shape[-1:]), rows(gamma), rows(theta), rows(inverse_scale))
+                bound[shape] = (rows(choice).expand(shape + choice.shape[-1:]), rows(gamma), rows(theta),
+                                rows(inverse_scale), rows(inverse_scale[..., -1]).expand(shape))
             return bound[shape]
 
         def rates(values: dict, shape, x) -> torch.Tensor:
             cache: dict = {}
-            choice_, gamma_, theta_, inverse_scale_ = constants(shape)
-            f = torch.nn.functional.pad(_stack([_cached(h, values, shape, cache) for h in self.functions], shape, dtype),
-                                        (0, 1), value=1.0) * inverse_scale_
+            choice_, gamma_, theta_, inverse_scale_, one = constants(shape)
+            f = _stack([_cached(h, values, shape, cache) for h in self.functions] + [one], shape, dtype)
+            f = f * inverse_scale_ if scaled else f
             factor = power(torch.gather(torch.log(f.abs().clamp_min(FLOOR)), -1, choice_), gamma_)
             if signed:
                 factor = factor * torch.gather(torch.where(magnitude, torch.ones_like(f), torch.sign(f)), -1, choice_)

@@ -80,7 +80,8 @@ def _runge_kutta(func, record: Record, x0: torch.Tensor, tableau, substeps: int,
     steps = int(torch.ceil((t[-1] - t[0]) / h - 1e-9))
     keys = torch.tensor([6 * i + offset for i in range(steps) for offset in offsets], device=t.device)
     stage_times = t[0] + keys.to(t.dtype) * (h / 6)  # in the loop's order
-    table = [c.unbind(-1) for c in record.at(stage_times).unbind(-1)]  # per external signal, per stage
+    table = record.at(stage_times)
+    table = [c.unbind(-1) for c in table.expand(x0.shape[:-1] + table.shape[-2:]).unbind(-1)]  # per signal, per stage: (B,)
     times = stage_times.unbind(0)
     coefficients = [[h * a for a in row] for row in stages]
     weights = [h * b for b in weights]
