@@ -105,61 +105,52 @@ class SystemModel:
     def equation_rates(self, p: Parameters, dtype, device):
         """``rates(values, shape)``: every equation's modelled target (*shape, E) by Eq. 9, with
         the constants of ``p`` bound once; ``shape`` is the signals' batch shape, ending in p's B
-        rows or broadcastable to them."""
-        rates = self._rates(p, dtype, device, tuple(len(self.states) + e for e in range(len(self.equations))))
-        return lambda values, shape: rates(values, shape, None)
-
-    def rhs(self, p: Parameters, dtype, device):
-        """``rates(values, x)``: ``d x / dt`` (B, S) from the equations (Eq. 9) and the kinematic states."""
-        rates = self._rates(p, dtype, device, self.source)
-        return lambda values, x: rates(values, x.shape[:-1], x)
-
-    def _rates(self, p: Parameters, dtype, device, source: tuple[int, ...]):
-        """``rates(values, shape, x)``: the columns ``source`` (indices into cat(states, equation
-        rates)) as one sum ``(terms * factors * theta) @ assign`` over the adjustable and fixed
-        components (and the states ``x``, for kinematic columns). A fixed component is an
-        unadjusted one: its function is the appended constant 1, exponent 0, so its factor is 1."""
-        components = self.adjustable + self.fixed
-        n_states, g = len(self.states), len(self.functions)
-        assign = torch.zeros(len(components) + n_states, len(source), dtype=dtype, device=device)
-        for o, s in enumerate(source):
-            if s < n_states:
-                assign[len(components) + s, o] = 1.0
+        rows or broadcastable to them. The unadjusted choice picks an appended constant function 1
+        (factor 1 for any exponent)."""
+        def assign(components):
+            matrix = torch.zeros(len(components), len(self.equations), dtype=dtype, device=device)
             for k, (e, _) in enumerate(components):
-                assign[k, o] += float(e == s - n_states)
-        kinematic = any(s < n_states for s in source)
-        if not kinematic:
-            assign = assign[: len(components)]
-        terms = [self.equations[e].components[i].term for e, i in components]
-        b, fixed = p.choice.shape[0], len(self.fixed)
-        choice = torch.cat([p.choice, p.choice.new_full((b, fixed), g)], -1)
-        gamma = torch.cat([p.gamma, torch.zeros_like(p.theta_fixed)], -1)
-        theta = torch.cat([p.theta, p.theta_fixed], -1)
+                matrix[k, e] = 1.0
+            return matrix
+
         inverse_scale = torch.nn.functional.pad(1.0 / p.scale, (0, 1), value=1.0)
         scaled = not bool((p.scale == 1).all())
         magnitude = torch.tensor([f.is_magnitude for f in self.functions] + [True], device=device)
         signed = not bool(magnitude.all())
-        bound: dict = {}  # the constants per batch shape
+        adjustable_terms = [self.equations[e].components[i].term for e, i in self.adjustable]
+        fixed_terms = [self.equations[e].components[i].term for e, i in self.fixed]
+        assign_adjustable, assign_fixed = assign(self.adjustable), assign(self.fixed)
+        bound: dict = {}  # the constants of p per batch shape
 
         def constants(shape):
             if shape not in bound:
                 rows = (lambda v: v) if len(shape) == 1 else (lambda v: v.view(v.shape[:1] + (1,) * (len(shape) - 1) + v.shape[1:]))
-                bound[shape] = (rows(choice).expand(shape + choice.shape[-1:]), rows(gamma), rows(theta),
-                                rows(inverse_scale), rows(inverse_scale[..., -1]).expand(shape))
+                bound[shape] = (rows(p.choice).expand(shape + p.choice.shape[-1:]), rows(p.gamma), rows(p.theta),
+                                rows(p.theta_fixed), rows(inverse_scale), rows(inverse_scale[..., -1]).expand(shape))
             return bound[shape]
 
-        def rates(values: dict, shape, x) -> torch.Tensor:
+        def rates(values: dict, shape) -> torch.Tensor:
             cache: dict = {}
-            choice_, gamma_, theta_, inverse_scale_, one = constants(shape)
-            f = _stack([_cached(h, values, shape, cache) for h in self.functions] + [one], shape, dtype)
+            choice, gamma, theta, theta_fixed, inverse_scale_, one = constants(shape)
+            f = _stack([_cached(g, values, shape, cache) for g in self.functions] + [one], shape, dtype)
             f = f * inverse_scale_ if scaled else f
-            factor = power(torch.gather(torch.log(f.abs().clamp_min(FLOOR)), -1, choice_), gamma_)
+            factor = power(torch.gather(torch.log(f.abs().clamp_min(FLOOR)), -1, choice), gamma)
             if signed:
-                factor = factor * torch.gather(torch.where(magnitude, torch.ones_like(f), torch.sign(f)), -1, choice_)
-            out = _stack([_cached(m, values, shape, cache) for m in terms], shape, dtype) * factor * theta_
-            return (torch.cat([out, x], -1) if kinematic else out) @ assign
+                factor = factor * torch.gather(torch.where(magnitude, torch.ones_like(f), torch.sign(f)), -1, choice)
+            terms = _stack([_cached(m, values, shape, cache) for m in adjustable_terms], shape, dtype)
+            out = (terms * factor * theta) @ assign_adjustable
+            if fixed_terms:
+                fixed = _stack([_cached(m, values, shape, cache) for m in fixed_terms], shape, dtype)
+                out = out + (fixed * theta_fixed) @ assign_fixed
+            return out
 
         return rates
+
+    def rhs(self, p: Parameters, dtype, device):
+        """``rates(values, x)``: ``d x / dt`` (B, S) from the equations (Eq. 9) and the kinematic states."""
+        equation_rates = self.equation_rates(p, dtype, device)
+        source = torch.tensor(self.source, device=device)
+        return lambda values, x: torch.index_select(torch.cat([x, equation_rates(values, x.shape[:-1])], -1), -1, source)
 
 
 def _cached(expression, values: dict, shape, cache: dict):
