@@ -16,8 +16,9 @@ def fit_parameters(data: SimulationData, choice, gamma, z, free: torch.Tensor, s
     """Levenberg-Marquardt on the ``free`` entries of z (T, C, Z) for fixed exponents (T, C, Qa).
 
     Each step tries the dampings of :data:`DAMPING` together with their Jacobians in one batched
-    simulation and keeps, per candidate, the best that lowers the sum of squares. Returns z and
-    the simulated output (T, C, M).
+    simulation and keeps, per candidate, the best that lowers the sum of squares; the steps end
+    early when no candidate improves (every later step would repeat that one). Returns z and the
+    simulated output (T, C, M).
     """
     q = gamma.shape[-1]
     p = z.shape[-1] - q - data.initial.shape[-1]
@@ -43,6 +44,8 @@ def fit_parameters(data: SimulationData, choice, gamma, z, free: torch.Tensor, s
         sse_t = torch.where(usable(out_t), (y.unsqueeze(-2) - out_t) ** 2, torch.inf).sum(-1)  # (T, C, L)
         best_sse, best = sse_t.min(-1)
         better = best_sse < sse
+        if not bool(better.any()):  # every later step would repeat this one: none improves
+            break
         pick = lambda v: v.gather(2, best.view(best.shape + (1,) * (v.dim() - 2)).expand(v.shape[:2] + (1,) + v.shape[3:])).squeeze(2)
         keep = lambda new, old: torch.where(better.view(better.shape + (1,) * (old.dim() - 2)), new, old)
         z, out, jz, sse = keep(pick(trial), z), keep(pick(out_t), out), keep(pick(jz_t), jz), torch.where(better, best_sse, sse)

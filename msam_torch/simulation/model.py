@@ -105,36 +105,43 @@ class SystemModel:
     def equation_rates(self, p: Parameters, dtype, device):
         """``rates(values, shape)``: every equation's modelled target (*shape, E) by Eq. 9, with
         the constants of ``p`` bound once; ``shape`` is the signals' batch shape, ending in p's B
-        rows or broadcastable to them."""
+        rows or broadcastable to them. The unadjusted choice picks an appended constant function 1
+        (factor 1 for any exponent)."""
         def assign(components):
             matrix = torch.zeros(len(components), len(self.equations), dtype=dtype, device=device)
             for k, (e, _) in enumerate(components):
                 matrix[k, e] = 1.0
             return matrix
 
-        inverse_scale = 1.0 / p.scale
-        signed = [not f.is_magnitude for f in self.functions]
-        magnitude = torch.tensor([not v for v in signed], device=device)
+        inverse_scale = torch.nn.functional.pad(1.0 / p.scale, (0, 1), value=1.0)
+        scaled = not bool((p.scale == 1).all())
+        magnitude = torch.tensor([f.is_magnitude for f in self.functions] + [True], device=device)
+        signed = not bool(magnitude.all())
         adjustable_terms = [self.equations[e].components[i].term for e, i in self.adjustable]
         fixed_terms = [self.equations[e].components[i].term for e, i in self.fixed]
         assign_adjustable, assign_fixed = assign(self.adjustable), assign(self.fixed)
+        bound: dict = {}  # the constants of p per batch shape
+
+        def constants(shape):
+            if shape not in bound:
+                rows = (lambda v: v) if len(shape) == 1 else (lambda v: v.view(v.shape[:1] + (1,) * (len(shape) - 1) + v.shape[1:]))
+                bound[shape] = (rows(p.choice).expand(shape + p.choice.shape[-1:]), rows(p.gamma), rows(p.theta),
+                                rows(p.theta_fixed), rows(inverse_scale), rows(inverse_scale[..., -1]).expand(shape))
+            return bound[shape]
 
         def rates(values: dict, shape) -> torch.Tensor:
             cache: dict = {}
-            rows = (lambda v: v) if len(shape) == 1 else (lambda v: v.view(v.shape[:1] + (1,) * (len(shape) - 1) + v.shape[1:]))
-            f = _stack([_cached(g, values, shape, cache) for g in self.functions], shape, dtype) * rows(inverse_scale)
-            log_f = torch.log(f.abs().clamp_min(FLOOR))
-            log_f = torch.cat([log_f, torch.zeros_like(log_f[..., :1])], -1)
-            choice = rows(p.choice).expand(shape + p.choice.shape[-1:])
-            factor = power(torch.gather(log_f, -1, choice), rows(p.gamma))
-            if any(signed):
-                sign = torch.where(magnitude, torch.ones_like(f), torch.sign(f))
-                factor = factor * torch.gather(torch.cat([sign, torch.ones_like(sign[..., :1])], -1), -1, choice)
+            choice, gamma, theta, theta_fixed, inverse_scale_, one = constants(shape)
+            f = _stack([_cached(g, values, shape, cache) for g in self.functions] + [one], shape, dtype)
+            f = f * inverse_scale_ if scaled else f
+            factor = power(torch.gather(torch.log(f.abs().clamp_min(FLOOR)), -1, choice), gamma)
+            if signed:
+                factor = factor * torch.gather(torch.where(magnitude, torch.ones_like(f), torch.sign(f)), -1, choice)
             terms = _stack([_cached(m, values, shape, cache) for m in adjustable_terms], shape, dtype)
-            out = (terms * factor * rows(p.theta)) @ assign_adjustable
+            out = (terms * factor * theta) @ assign_adjustable
             if fixed_terms:
                 fixed = _stack([_cached(m, values, shape, cache) for m in fixed_terms], shape, dtype)
-                out = out + (fixed * rows(p.theta_fixed)) @ assign_fixed
+                out = out + (fixed * theta_fixed) @ assign_fixed
             return out
 
         return rates

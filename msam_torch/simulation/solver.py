@@ -78,20 +78,22 @@ def _runge_kutta(func, record: Record, x0: torch.Tensor, tableau, substeps: int,
     t = record.t
     h = (t[1] - t[0]) / substeps if step is None else torch.as_tensor(step, dtype=t.dtype, device=t.device)
     steps = int(torch.ceil((t[-1] - t[0]) / h - 1e-9))
-    times = t[0] + torch.arange(6 * steps + 1, dtype=t.dtype, device=t.device) * (h / 6)
-    table = record.at(times).unbind(-1)
-    times = times.unbind(0)
+    keys = torch.tensor([6 * i + offset for i in range(steps) for offset in offsets], device=t.device)
+    stage_times = t[0] + keys.to(t.dtype) * (h / 6)  # in the loop's order
+    table = record.at(stage_times)
+    table = [c.unbind(-1) for c in table.expand(x0.shape[:-1] + table.shape[-2:]).unbind(-1)]  # per signal, per stage: (B,)
+    times = stage_times.unbind(0)
     coefficients = [[h * a for a in row] for row in stages]
     weights = [h * b for b in weights]
-    x, grid = x0, [x0]
-    for i in range(steps):
+    x, grid, stage_index = x0, [x0], iter(range(len(times)))
+    for _ in range(steps):
         k = []
-        for offset, row in zip(offsets, coefficients):
+        for row in coefficients:
             stage = x
             for a, kj in zip(row, k):
                 stage = stage + kj * a
-            key = 6 * i + offset
-            k.append(func(times[key], stage, [c[..., key] for c in table]))
+            j = next(stage_index)
+            k.append(func(times[j], stage, [c[j] for c in table]))
         for b, kj, c in zip(weights, k, tableau[2]):
             if c:
                 x = x + kj * b
