@@ -16,7 +16,7 @@ step = sample time), and estimates the initial states by least squares (15 Leven
 steps on the unadjusted starting model first); its sensitivities are exact (forward mode through
 the solver). The last lines print the successes and time per evaluation and rule, and the cost
 ratio of simulation to algebraic evaluation over all rows of the run. Trials at a parametric-error level draw the nominal
-parameters as design.md 2.8 (``data.seed`` = trial); at level 0 every trial would be the same, so
+parameters as docs/design.md 2.8 (``data.seed`` = trial); at level 0 every trial would be the same, so
 one is run. Success: the winner's adjustment functions equal the target model's (Table 1). The time
 is the wall time of all trials of a row (batched), data generation included.
 

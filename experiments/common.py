@@ -162,7 +162,7 @@ def markdown_table(header: list[str], rows: list[list]) -> str:
 
 
 def protocol_notes(config: Config, experiment: ExperimentConfig | None = None) -> str:
-    """The protocol choices of design.md section 2 that this output used."""
+    """The protocol choices of docs/design.md section 2 that this output used."""
     a, d = config.adaptation, config.data
     step = {"dm": "literal dM-scaled step added to gamma (Eq. 16-18, design 2.1)",
             "gauss_newton": "plain Gauss-Newton step in exponent units (design 2.1 option)"}[a.scaling]

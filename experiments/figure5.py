@@ -1,5 +1,5 @@
 """Figure 5: cond(Phi^T Phi) with and without dM scaling, per parametric error level, for the
-correct candidate and over all candidates of the round robin (design.md 2.10: report what is
+correct candidate and over all candidates of the round robin (docs/design.md 2.10: report what is
 measured). Every trial stores log10 cond per iteration and candidate.
 
     PYTHONPATH=. python experiments/figure5.py [configs/figure5.yaml] [--out DIR] [--max-trials K]

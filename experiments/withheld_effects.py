@@ -2,7 +2,7 @@
 
 Each case is a true system with a known effect (``msam_torch.systems.WITHHELD``); data are
 simulated with it, and the starting model is given without it. Grid: noise 0, 1, 5 % (of each
-measured signal's standard deviation), parametric error 0, 25, 50 % (design.md 2.8, drawn per
+measured signal's standard deviation), parametric error 0, 25, 50 % (docs/design.md 2.8, drawn per
 seed), seeds 0..S-1. Only the displacement (level) and the input are measured; velocities and
 accelerations are estimated (Savitzky-Golay, default window). Held-out data come from another
 excitation of the same system.

@@ -86,7 +86,7 @@ Quantities = Annotated[list[Quantity], BeforeValidator(lambda v: [v] if isinstan
 
 
 class SignalQuantity(_Section):
-    """What a signal is (the catalogue's roles come from it, design.md section 3); units optional."""
+    """What a signal is (the catalogue's roles come from it, docs/design.md section 3); units optional."""
 
     quantity: Quantity
     unit: Optional[str] = None

@@ -1,7 +1,7 @@
 """Batched trials: many draws of the nominal parameters adapted in one tensor program.
 
 The controlled tests of the paper (Tables 2-4, Figure 5) repeat Algorithm 1 on the same data with
-nominal parameters drawn at a parametric error level (design.md 2.8). The trials only differ in
+nominal parameters drawn at a parametric error level (docs/design.md 2.8). The trials only differ in
 their nominal theta, so they share the data (expanded, not copied, along the leading trials axis
 T of :class:`~msam_torch.candidates.EquationData`) and run together. Trials, then candidates, are
 chunked so that a chunk holds at most ``max_elements`` values of shape (T, C, N, Q): memory stays

@@ -2,7 +2,7 @@
 
 Shared by the tests, the experiments and the docs. :func:`simulate` returns every signal the
 model specs may read: each state, its exact time derivative (from the true right-hand side), the
-inputs and the time ``t``. :func:`perturb_parameters` draws the parametric error of design.md 2.8.
+inputs and the time ``t``. :func:`perturb_parameters` draws the parametric error of docs/design.md 2.8.
 """
 from __future__ import annotations
 
@@ -60,7 +60,7 @@ def step_input(level: float) -> Callable[[torch.Tensor], torch.Tensor]:
 
 
 SYSTEMS: dict[str, System] = {
-    # Table 1 and design.md 2.9: step u = 1000 N from rest, t in [0, 3] s, N = 1000.
+    # Table 1 and docs/design.md 2.9: step u = 1000 N from rest, t in [0, 3] s, N = 1000.
     "harmonic": System(("x", "x_dot"), {"m": 375.0, "c": 9800.0, "k": 130000.0}, _harmonic, (0.0, 0.0), 3.0,
                        inputs={"u": step_input(1000.0)}, measured=("x", "u")),
     # x(0) = 0, x_dot(0) = -1, t in [0, 20].
@@ -104,7 +104,7 @@ def perturb_parameters(parameters: Mapping[str, float], level: float, generator:
 
     The error is split at random (flat Dirichlet), each share gets a random sign, and a share that
     would push a parameter below ``floor`` of its true magnitude (or through zero) is applied
-    upwards instead (design.md 2.8).
+    upwards instead (docs/design.md 2.8).
     """
     names = list(parameters)
     if level == 0 or not names:

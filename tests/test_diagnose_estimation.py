@@ -1,5 +1,5 @@
 """Estimation chosen from the record, verdicts that check themselves, the diagnose options on the
-command line (design.md section 3b)."""
+command line (docs/design.md section 3b)."""
 import json
 import sys
 from dataclasses import replace

@@ -1,4 +1,4 @@
-"""Unit invariance (design.md 2.7): with ``normalize: rms`` the same data and model in other
+"""Unit invariance (docs/design.md 2.7): with ``normalize: rms`` the same data and model in other
 units give the same selection and exponents. The converted data go through a CSV file."""
 import pytest
 import yaml
@@ -49,7 +49,7 @@ def test_normalisation_alone_is_invariant_with_theta_fixed(tmp_path):
 
 
 def test_without_normalisation_units_change_the_result(tmp_path):
-    """The reason for the option: |f|^gamma is not unit-invariant (design.md 2.7)."""
+    """The reason for the option: |f|^gamma is not unit-invariant (docs/design.md 2.7)."""
     reference = run(tmp_path, "harmonic", 1.0, 1.0, [])
     converted = run(tmp_path, "harmonic", 1e3, 1.0, [])
     assert (converted.adjustments != reference.adjustments

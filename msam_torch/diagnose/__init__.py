@@ -1,5 +1,5 @@
 """Sim-to-real gap diagnosis: where the gap lies, which unmodelled effect causes it, how far it
-shrinks (``msam diagnose``; design.md section 3).
+shrinks (``msam diagnose``; docs/design.md section 3).
 
 ``diagnose(config, data=None, validation=None) -> GapReport``; ``GapReport.save(out)`` writes
 ``gap_report.json`` and ``report.md`` with PNG plots; ``GapReport.verdict_kind`` is a

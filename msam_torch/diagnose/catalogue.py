@@ -1,4 +1,4 @@
-"""The effect catalogue (design.md section 3): physical effects as data (``catalogue.yaml`` in this
+"""The effect catalogue (docs/design.md section 3): physical effects as data (``catalogue.yaml`` in this
 package, plus a config's ``model.effects``), and the roles of a model's signals.
 
 An effect term is ``theta' * M * |s|^gamma`` in the equation of a state's derivative. Its *total

@@ -1,7 +1,7 @@
 """How sure a selection is: the null-verdict rule for a significant effect, the bootstrap trials'
 outcomes and how often the named effect wins them, the margin to the best other name.
 
-Null-verdict rule (design.md section 3): an effect is reported only if its held-out RMSE beats the
+Null-verdict rule (docs/design.md section 3): an effect is reported only if its held-out RMSE beats the
 theta-refitted starting model by at least ``relative`` (5 %) and by ``absolute`` (0.2 %) of the
 held-out target's RMS.
 """

@@ -1,4 +1,4 @@
-"""Estimation chosen from the record (design.md section 3b): the band the signals occupy, the
+"""Estimation chosen from the record (docs/design.md section 3b): the band the signals occupy, the
 test-function half-width and quadrature rate it implies, and the weak form's signals.
 
 The weak form integrates the measured signals themselves; a derivative the data do not hold

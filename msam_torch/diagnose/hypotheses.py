@@ -6,7 +6,7 @@ a copy of every adjustable component, and the adjustment set F plus two constant
 
 - ``retuned``: the starting model with every theta re-fitted (the null hypothesis);
 - ``multiplicative``: one component adjusted, ``M_i -> M_i |f|^gamma`` (the paper's Eq. 8);
-- ``additive``: one component split into two copies (design.md section 3): the original
+- ``additive``: one component split into two copies (docs/design.md section 3): the original
   ``theta_i M_i`` and a copy ``theta_i' M_i |f|^gamma`` with its own exponent and theta, started
   at several exponents away from 0 (at 0 the copies coincide and never separate).
 

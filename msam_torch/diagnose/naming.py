@@ -1,5 +1,5 @@
 """Catalogue names of fitted hypotheses (:mod:`.catalogue`), given only within confidence
-(design.md section 3).
+(docs/design.md section 3).
 
 Each effect hypothesis's *total exponent* on its signal (``gamma`` plus the power of the signal in
 its component: ``c v|v|^-0.3`` is 0.7 on ``v``) gets an interval from the bootstrap trials

@@ -1,6 +1,6 @@
 """The verdict of a diagnosis: one equation's, from the null rule, the bootstrap, the residual
 structure left and (for "no significant gap") the residual checks; the report's, from its
-equations' and the free runs' checks (design.md section 3): a verdict is given only when the theta
+equations' and the free runs' checks (docs/design.md section 3): a verdict is given only when the theta
 re-fitted start is no worse than the nominal model on held-out data and the free runs it rests on
 do not diverge; otherwise it is inconclusive, with the reasons and what to try."""
 from __future__ import annotations

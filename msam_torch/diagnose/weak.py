@@ -3,7 +3,7 @@ weak-form rows of one equation for fitting and for held-out scoring (:class:`Wea
 
 ``int phi_m(t) y^(k)(t) dt = (-1)^k int phi_m^(k)(t) y(t) dt`` for test functions that vanish with
 their derivatives at the window ends, so the target needs no numerical derivative of the data,
-and every regressor is filtered by the same kernel ``phi_m`` (consistent regressors, design.md
+and every regressor is filtered by the same kernel ``phi_m`` (consistent regressors, docs/design.md
 section 3; weak SINDy, Messenger and Bunch 2021). The test functions are bumps
 ``phi(s) = (1 - s^2)^p``, ``s = (t - c_m)/h``, centred every ``stride`` samples on a uniform grid.
 """
