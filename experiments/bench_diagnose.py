@@ -22,7 +22,7 @@ from msam_torch.config import DataConfig, load_config
 from msam_torch.data import build_dataset
 from msam_torch.diagnose import diagnose
 from msam_torch.spec import ModelSpec
-from msam_torch.systems import SYSTEMS, WITHHELD, simulate
+from msam_torch.systems import SYSTEMS, WITHHELD, measure
 
 CASE = "msd_coulomb"
 NOISE = 0.01
@@ -38,7 +38,7 @@ def records(length: float, faster: int, case: str = CASE) -> tuple:
     for name in (w.system, w.held_out):
         base = SYSTEMS[name]
         system = replace(base, samples=int(round((base.samples - 1) * length * faster)) + 1, t_end=base.t_end * length)
-        sim = {k: v.numpy() for k, v in simulate(system, rtol=1e-8, atol=1e-10).items()}
+        sim = {k: v.numpy() for k, v in measure(system, rtol=1e-8, atol=1e-10).items()}
         measured = {k: sim[k] + (0 if k in system.inputs else NOISE * sim[k].std() * rng.standard_normal(sim[k].size))
                     for k in system.measured}
         out.append(build_dataset(sim["t"], measured, DataConfig(derivatives="savgol"), spec, {"source": name},

@@ -39,7 +39,7 @@ def problem(candidates: int, samples: int):
     from msam_torch.candidates import EquationData
     from msam_torch.config import load_config
     from msam_torch.spec import ModelSpec
-    from msam_torch.systems import SYSTEMS, simulate
+    from msam_torch.systems import SYSTEMS, measure
 
     name, functions = CANDIDATES[candidates]
     if name == "wide":  # six components of the third-order model's states, F = {x1, x2, x3[, |x1|]}
@@ -54,7 +54,7 @@ def problem(candidates: int, samples: int):
     spec = ModelSpec.from_config(config.model)
     equation = spec.equations[0]
     system = dataclasses.replace(SYSTEMS[config.data.system], samples=samples)
-    data = EquationData.build(equation, simulate(system))
+    data = EquationData.build(equation, measure(system))
     theta = spec.theta(equation)
     return data, theta[list(equation.adjustable)], theta[list(equation.fixed)], equation
 

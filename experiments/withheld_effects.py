@@ -36,7 +36,7 @@ from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
 from msam_torch.diagnose.catalogue import NOT_CATALOGUED, name_effect
 from msam_torch.api import nominal_parameters
 from msam_torch.spec import ModelSpec
-from msam_torch.systems import SYSTEMS, WITHHELD, simulate
+from msam_torch.systems import SYSTEMS, WITHHELD, measure
 
 NOISE = (0.0, 0.01, 0.05)
 PARAMETRIC = (0.0, 0.25, 0.5)
@@ -53,7 +53,7 @@ def simulations(case: str) -> list[dict]:
     if case not in _SIMULATIONS:
         torch.set_num_threads(1)
         w = WITHHELD[case]
-        _SIMULATIONS[case] = [{k: v.numpy() for k, v in simulate(SYSTEMS[n], rtol=1e-8, atol=1e-10).items()}
+        _SIMULATIONS[case] = [{k: v.numpy() for k, v in measure(SYSTEMS[n], rtol=1e-8, atol=1e-10).items()}
                               for n in (w.system, w.held_out)]
     return _SIMULATIONS[case]
 

@@ -23,8 +23,9 @@ import torch
 from .config import DataConfig, RangeConfig
 from .derivatives import ESTIMATORS, Auto, DerivativeEstimator, Exact, configured, noise_level, takes
 from .errors import ConfigError, DataError
+from .information import check_variation
 from .spec import ModelSpec, split_derivative
-from .systems import get_system, simulate
+from .systems import get_system, measure
 
 Table = Union[pd.DataFrame, Mapping[str, object]]
 REGULAR = 1e-2  # sampling is regular when every step is within 1 % of the median step
@@ -325,50 +326,10 @@ def build_dataset(t: np.ndarray, measured: dict[str, np.ndarray], config: DataCo
     return Dataset(tensors, info, {k: torch.tensor(np.asarray(v, dtype=float), dtype=dtype) for k, v in measured.items()})
 
 
-def check_variation(spec: ModelSpec, signals: Mapping[str, torch.Tensor], source: str) -> None:
-    """Targets must vary (the fitness correlates with them, Eq. 19); so must every adjustment
-    function's magnitude, or its exponent has nothing to act on."""
-    for e, equation in enumerate(spec.equations):
-        target = signals[equation.target]
-        unknowns = len(equation.components) + len(equation.adjustable)
-        if target.shape[-1] < unknowns + 2:
-            raise DataError(f"{source}: {target.shape[-1]} samples for model.equations[{e}], which fits {unknowns} "
-                            f"values (theta and exponents); the fitness (Eq. 19) needs at least {unknowns + 2}")
-        if _constant(target):
-            raise DataError(f"{source}: the target {equation.target!r} of model.equations[{e}] is constant up to "
-                            "rounding: the fitness correlation (Eq. 19) needs it to vary")
-        expressions = [(f"components[{i}].term", c.term) for i, c in enumerate(equation.components)]
-        expressions += [(f"adjustments[{i}]", f) for i, f in enumerate(equation.adjustments)]
-        for key, expression in [("target", None)] + expressions:
-            value = target if expression is None else torch.as_tensor(expression(signals)).expand_as(target)
-            bad = torch.nonzero(~torch.isfinite(value)).flatten()
-            name = repr(equation.target if expression is None else expression.text)
-            if bad.numel():
-                raise DataError(f"{source}: {name} (model.equations[{e}].{key}) is not finite at "
-                                f"{bad.numel()} samples (first at sample {int(bad[0])}, 0-based)")
-            finfo, size = torch.finfo(value.dtype), float(value.abs().max())
-            if 0 < size < finfo.tiny ** 0.5 or size > finfo.max ** 0.5:
-                raise DataError(f"{source}: {name} (model.equations[{e}].{key}) reaches at most {size:.3g}, beyond "
-                                f"what {value.dtype} can square ({finfo.tiny ** 0.5:.2g} .. {finfo.max ** 0.5:.2g}): "
-                                "rescale the data")
-        for i, function in enumerate(equation.adjustments):
-            magnitude = torch.as_tensor(function(signals)).abs().expand_as(target)
-            if _constant(magnitude):
-                raise DataError(f"{source}: adjustment function {function.text!r} (model.equations[{e}]"
-                                f".adjustments[{i}]) has constant magnitude on the data, so its exponent "
-                                "cannot be identified")
-
-
-def _constant(values: torch.Tensor) -> bool:
-    """Constant up to rounding: the spread is within what summing the samples (N eps) leaves."""
-    spread, size = float(values.max() - values.min()), float(values.abs().max())
-    return spread <= values.shape[-1] * torch.finfo(values.dtype).eps * size
-
-
 @functools.lru_cache(maxsize=8)
 def _simulation(name: str) -> dict[str, np.ndarray]:
     """The noise-free simulation of a named system (computed once per process)."""
-    return {k: v.numpy() for k, v in simulate(get_system(name), dtype=torch.float64).items()}
+    return {k: v.numpy() for k, v in measure(get_system(name), dtype=torch.float64).items()}
 
 
 def simulated_measurements(config: DataConfig) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:

@@ -1,6 +1,6 @@
 """Systems with known answers, simulated with torchdiffeq: the controlled cases of Table 1.
 
-Shared by the tests, the experiments and the docs. :func:`simulate` returns every signal the
+Shared by the tests, the experiments and the docs. :func:`measure` returns every signal the
 model specs may read: each state, its exact time derivative (from the true right-hand side), the
 inputs and the time ``t``. :func:`perturb_parameters` draws the parametric error of docs/design.md 2.8.
 """
@@ -81,7 +81,7 @@ def get_system(name: str, key: str = "data.system") -> System:
         raise ConfigError(key, f"unknown system {name!r} (known: {', '.join(SYSTEMS)})") from None
 
 
-def simulate(system: System, parameters: Mapping[str, float] | None = None, dtype=torch.float64,
+def measure(system: System, parameters: Mapping[str, float] | None = None, dtype=torch.float64,
              rtol: float = 1e-10, atol: float = 1e-10) -> dict[str, torch.Tensor]:
     """Simulate ``system`` on its grid; return ``t``, states, exact derivatives and inputs (N,)."""
     p = dict(system.parameters if parameters is None else parameters)

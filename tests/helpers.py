@@ -6,7 +6,7 @@ from pathlib import Path
 from msam_torch.candidates import EquationData
 from msam_torch.config import load_config
 from msam_torch.spec import ModelSpec
-from msam_torch.systems import SYSTEMS, simulate
+from msam_torch.systems import SYSTEMS, measure
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
@@ -16,7 +16,7 @@ def equation_data(name: str = "harmonic", equation: int = 0, normalize: str = "n
     config = load_config(CONFIGS / f"{name}.yaml")
     spec = ModelSpec.from_config(config.model)
     eq = spec.equations[equation]
-    data = EquationData.build(eq, simulate(SYSTEMS[config.data.system]), normalize)
+    data = EquationData.build(eq, measure(SYSTEMS[config.data.system]), normalize)
     theta = spec.theta(eq)
     return data, theta[list(eq.adjustable)], theta[list(eq.fixed)], eq
 
@@ -24,7 +24,7 @@ def equation_data(name: str = "harmonic", equation: int = 0, normalize: str = "n
 @lru_cache(maxsize=None)
 def simulated(system: str) -> dict:
     """The signals of a bundled system as numpy arrays, simulated once per test session."""
-    return {k: v.numpy() for k, v in simulate(SYSTEMS[system]).items()}
+    return {k: v.numpy() for k, v in measure(SYSTEMS[system]).items()}
 
 
 def measured_case(name: str = "harmonic", length: float = 1.0, time: float = 1.0, every: int = 1):

@@ -9,7 +9,7 @@ from msam_torch.config import load_config
 from msam_torch.derivatives import METHODS, choose_window, cutoff_frequency, estimate, noise_level
 from msam_torch.errors import ConfigError, DataError
 from msam_torch.spec import ModelSpec
-from msam_torch.systems import SYSTEMS, simulate
+from msam_torch.systems import SYSTEMS, measure
 from msam_torch.tuning import tune_adapted, tune_start
 from tests.helpers import measured_case, simulated
 
@@ -129,7 +129,7 @@ def test_theta_re_estimation_recovers_the_true_theta_and_reveals_the_nominal_err
     config = load_config("configs/harmonic.yaml")
     spec = ModelSpec.from_config(config.model)
     eq = spec.equations[0]
-    data = EquationData.build(eq, simulate(SYSTEMS["harmonic"]))
+    data = EquationData.build(eq, measure(SYSTEMS["harmonic"]))
     true = spec.theta(eq)
     choice, gamma = torch.tensor([[0, 1]]), torch.tensor([[1.0, 2.0]], dtype=torch.float64)
     tuned = tune_adapted(data, choice, gamma, true[[2]].unsqueeze(0))
@@ -137,7 +137,7 @@ def test_theta_re_estimation_recovers_the_true_theta_and_reveals_the_nominal_err
     held = tune_adapted(data, choice, gamma, 2 * true[[2]].unsqueeze(0), hold_fixed=True)
     assert torch.equal(held.theta_fixed[0], 2 * true[2:])  # held at the given value
     start = tune_start(data, true[[2]].unsqueeze(0))
-    assert start.measures["sum_abs_error"] < EquationData.build(eq, simulate(SYSTEMS["harmonic"])).y.abs().sum()
+    assert start.measures["sum_abs_error"] < EquationData.build(eq, measure(SYSTEMS["harmonic"])).y.abs().sum()
     result = adapt("configs/harmonic.yaml", ["adaptation.theta=varpro", "data.parametric_error=1.0", "data.seed=2"])
     tuning = result.equations[0].theta_tuning
     nominal = spec.theta(eq, result.data["nominal_parameters"])

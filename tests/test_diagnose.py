@@ -16,7 +16,7 @@ from msam_torch.diagnose.catalogue import NOT_CATALOGUED, name_effect
 from msam_torch.diagnose.weak import TestFunctions as Bumps
 from msam_torch.simulation import EquationModel, simulate_equations as simulate
 from msam_torch.spec import ModelSpec
-from msam_torch.systems import SYSTEMS, WITHHELD, simulate as simulate_true
+from msam_torch.systems import SYSTEMS, WITHHELD, measure as simulate_true
 
 FAST = DiagnoseOptions(bootstrap=6, steps=20)
 
