@@ -114,9 +114,8 @@ class SystemModel:
             return matrix
 
         inverse_scale = torch.nn.functional.pad(1.0 / p.scale, (0, 1), value=1.0)
-        scaled = not bool((p.scale == 1).all())
         magnitude = torch.tensor([f.is_magnitude for f in self.functions] + [True], device=device)
-        signed = not bool(magnitude.all())
+        signed = not all(f.is_magnitude for f in self.functions)
         adjustable_terms = [self.equations[e].components[i].term for e, i in self.adjustable]
         fixed_terms = [self.equations[e].components[i].term for e, i in self.fixed]
         assign_adjustable, assign_fixed = assign(self.adjustable), assign(self.fixed)
@@ -133,7 +132,7 @@ class SystemModel:
             cache: dict = {}
             choice, gamma, theta, theta_fixed, inverse_scale_, one = constants(shape)
             f = _stack([_cached(g, values, shape, cache) for g in self.functions] + [one], shape, dtype)
-            f = f * inverse_scale_ if scaled else f
+            f = f * inverse_scale_  # exact where the scale is 1 (normalize: none)
             factor = power(torch.gather(torch.log(f.abs().clamp_min(FLOOR)), -1, choice), gamma)
             if signed:
                 factor = factor * torch.gather(torch.where(magnitude, torch.ones_like(f), torch.sign(f)), -1, choice)
