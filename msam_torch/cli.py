@@ -202,6 +202,8 @@ DIAGNOSE_OPTIONS = (  # (flag, DiagnoseOptions field, argparse keywords); defaul
     ("--rtol", "rtol", {"type": _positive(float), "help": "adaptive solvers: relative tolerance (default 1e-6)"}),
     ("--atol", "atol", {"type": _positive(float), "help": "adaptive solvers: absolute tolerance relative to each "
                         "state's measured magnitude (default 1e-8)"}),
+    ("--max-effects", "max_effects", {"type": _positive(int), "help": "effects added in turn, at most: after an "
+                                      "accepted effect the rest of the gap is diagnosed again (default 3; 1: one)"}),
     ("--quadrature-samples", "quadrature_samples", {"type": _positive(int), "help": "records are low-pass filtered and "
                                                     "decimated to about this many samples (default 1000)"}),
 )

@@ -4,7 +4,8 @@ how far it shrinks.
 Each state equation is diagnosed in stages (:mod:`.equation`); then the starting, theta-retuned
 and adapted models are compared one-step and in free run (:mod:`.compare`) and the equations'
 verdicts make the report's (:mod:`.verdict`). A config evaluated by simulation is diagnosed by
-:mod:`.simulated`.
+:mod:`.simulated`. Accepted effects are added to the model and what remains is diagnosed again,
+effect after effect (:mod:`.multi`).
 """
 from __future__ import annotations
 
@@ -20,13 +21,15 @@ from ..data import DataArgument, resolve_datasets
 from ..plan import prepare
 from ..progress import LOGGER, step, tracked
 from ..trainer import Algebraic
+from .adapted import with_effects
 from .compare import check_solver, compare
 from .equation import diagnose_equation
 from .estimation import choose
+from .multi import in_turn
 from .options import DiagnoseOptions
 from .report import GapReport
 from .simulated import diagnose_simulated
-from .verdict import overall
+from .verdict import Verdict, overall
 
 
 def diagnose(config: Config | dict | str | Path, data: DataArgument = None, validation: DataArgument = None,
@@ -39,16 +42,24 @@ def diagnose(config: Config | dict | str | Path, data: DataArgument = None, vali
     or a :class:`~msam_torch.data.Dataset`); default: the config's own data. ``validation``:
     held-out data in the same forms (default: the config's validation range or file; without
     any, alternate time blocks of the training record are held out). Paths in the config are
-    relative to ``base_dir`` (default: the config file's folder).
+    relative to ``base_dir`` (default: the config file's folder). Effects are added in turn, at
+    most ``options.max_effects`` (:func:`.multi.in_turn`).
     """
     check_solver(options.solver)
     if base_dir is None:
         base_dir = Path(config).parent if isinstance(config, (str, Path)) else Path(".")
     if not isinstance(config, Config):
         config = load_config(config, overrides)
+    return in_turn(config, lambda c: _diagnose_once(c, data, validation, options, Path(base_dir)), options.max_effects)
+
+
+def _diagnose_once(config: Config, data: DataArgument, validation: DataArgument, options: DiagnoseOptions,
+                   base_dir: Path) -> tuple[GapReport, Config | None]:
+    """One diagnosis of ``config``'s starting model, and the config with its explained effects
+    added (None when evaluated by simulation or when nothing is explained)."""
     plan = prepare(config, in_memory=data is not None)
     if not isinstance(plan.evaluator, Algebraic):  # judged by simulation
-        return diagnose_simulated(plan, Path(base_dir), options, data=data, validation=validation)
+        return diagnose_simulated(plan, base_dir, options, data=data, validation=validation), None
     spec, device = plan.spec, plan.device
     total = len(spec.equations) + 2  # reading the data, each equation, comparing the models
     step(LOGGER, "diagnose", "reading the data", 0, total)
@@ -72,6 +83,8 @@ def diagnose(config: Config | dict | str | Path, data: DataArgument = None, vali
     data_info = {"train": dict(train.info),
                  "held_out": dict(held_out.info) if held_out is not None else "alternate time blocks",
                  "nominal_parameters": parameters}
-    return GapReport(verdict_kind=kind, verdict=verdict, equations=gaps, measures=gap_measures, data=data_info,
-                     options=asdict(options), config=config.model_dump(mode="json"),
-                     seconds=time.perf_counter() - started, reasons=tuple(reasons), series=series)
+    report = GapReport(verdict_kind=kind, verdict=verdict, equations=gaps, measures=gap_measures, data=data_info,
+                       options=asdict(options), config=config.model_dump(mode="json"),
+                       seconds=time.perf_counter() - started, reasons=tuple(reasons), series=series)
+    explained = {e.gap.target: e.model for e in equations if e.gap.verdict_kind is Verdict.EXPLAINED}
+    return report, with_effects(config, spec.equations, explained) if kind is Verdict.EXPLAINED else None

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..errors import ConfigError
+
 
 @dataclass(frozen=True)
 class DiagnoseOptions:
@@ -28,3 +30,8 @@ class DiagnoseOptions:
     rtol: float = 1e-6  # adaptive solvers: relative tolerance
     atol: float = 1e-8  # adaptive solvers: absolute tolerance, relative to each state's measured magnitude
     seed: int = 0
+    max_effects: int = 3  # effects added in turn, at most (.multi; 1: the first effect only)
+
+    def __post_init__(self):
+        if isinstance(self.max_effects, bool) or not isinstance(self.max_effects, int) or self.max_effects < 1:
+            raise ConfigError("max_effects", f"expected a whole number of at least 1, got {self.max_effects!r}")

@@ -84,6 +84,7 @@ class GapReport:
     config: dict
     seconds: float
     reasons: tuple = ()  # why the verdict is inconclusive, and what to try
+    in_turn: dict = field(default_factory=dict)  # effects added in turn, why the loop stopped, final model (.multi)
     series: dict = field(default_factory=dict, repr=False, compare=False)  # arrays for the plots
 
     def __str__(self) -> str:
@@ -119,6 +120,11 @@ class GapReport:
             lines.append(f"free-run NRMSE ({label}): start {n['start']}, theta re-fitted {n['retuned']}, "
                          f"adapted {n['adapted']}; closed by retuning {closed['retuning']}, "
                          f"by the effect {closed['effect']}")
+        for e in self.in_turn.get("effects", []):
+            lines.append(f"effect {e['step']} in {e['target']}: {e['effect']} (exponent {e['exponent']:.3f}); held-out "
+                         f"RMSE {e['heldout_rmse']['before']:.4g} -> {e['heldout_rmse']['after']:.4g}")
+        if self.in_turn:
+            lines.append(f"effects in turn stopped: {self.in_turn['stopped']}")
         lines.append(f"({self.seconds:.2f} s)")
         return "\n".join(lines)
 
@@ -203,6 +209,14 @@ def write_markdown(report: GapReport, out: Path, plots: bool = True) -> Path:
         name = figures.get(f"free_run_{label}")
         if name:
             md += [f"![free run {label}]({name})", ""]
+    if report.in_turn.get("effects"):
+        md += ["## Effects in turn", "", "| step | equation | effect | exponent | held-out RMSE before -> after | "
+               "free-run NRMSE before -> after |", "|---|---|---|---|---|---|"]
+        for e in report.in_turn["effects"]:
+            free = " -> ".join("-" if v is None else f"{v:.4g}" for v in (e["free_run_nrmse"]["before"], e["free_run_nrmse"]["after"]))
+            md.append(f"| {e['step']} | {e['target']} | {e['effect']} | {e['exponent']:.3f} | "
+                      f"{e['heldout_rmse']['before']:.4g} -> {e['heldout_rmse']['after']:.4g} | {free} |")
+        md += ["", f"Stopped: {report.in_turn['stopped']}.", ""]
     md += [f"_Computed in {report.seconds:.2f} s._", ""]
     return write_atomic(out / "report.md", "\n".join(md))
 

@@ -1,0 +1,144 @@
+"""Several effects in turn: a mass-spring-damper with two withheld effects gets both, in either
+order; with one, exactly one; with none, none. And the adapted structure written as a starting
+model computes the adapted model's rate."""
+from functools import lru_cache
+
+import numpy as np
+import pytest
+import torch
+
+from msam_torch.cli import main
+from msam_torch.config import DataConfig, load_config
+from msam_torch.data import build_dataset
+from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
+from msam_torch.diagnose.adapted import adapted_components
+from msam_torch.diagnose.hypotheses import encode, enumerate_hypotheses, extended_equation
+from msam_torch.errors import ConfigError
+from msam_torch.simulation import EquationModel
+from msam_torch.spec import ModelSpec
+from msam_torch.systems import System, measure, multisine
+
+MODEL = {
+    "states": ["x", "x_dot"], "inputs": ["u"], "parameters": {"m": 1.0, "c": 0.5, "k": 4.0},
+    "quantities": {"x": "position", "x_dot": "velocity", "u": "force"},
+    "equations": [{"target": "x_ddot", "components": [{"term": "x_dot", "theta": "-c/m"}, {"term": "x", "theta": "-k/m"},
+                                                      {"term": "u", "theta": "1/m", "adjustable": False}],
+                   "adjustments": ["abs(x_dot)", "abs(x)"]}],
+}
+EXCITATIONS = (multisine((0.4, 0.7, 1.1, 1.5, 1.9, 2.4, 3.0, 3.7), 2.5), multisine((0.5, 0.9, 1.3, 1.7, 2.2, 2.8), 2.2))
+WITHHELD = {  # name -> (catalogue names, force the starting model lacks)
+    "coulomb_and_cubic": ({"Coulomb friction", "hardening cubic stiffness"},
+                          lambda x, v: 0.6 * torch.tanh(v / 0.01) + 2.0 * x**3),
+    "coulomb": ({"Coulomb friction"}, lambda x, v: 0.6 * torch.tanh(v / 0.01)),
+    "none": (set(), lambda x, v: 0.0 * x),
+}
+TOTAL_EXPONENT = {"Coulomb friction": 0.0, "hardening cubic stiffness": 3.0}  # on the effect's signal
+OPTIONS = DiagnoseOptions(bootstrap=8, steps=20)
+
+
+def _rhs(force):
+    def rhs(t, s, p, u):
+        x, v = s[..., 0], s[..., 1]
+        return torch.stack([v, -0.5 * v - 4.0 * x - force(x, v) + u["u"]], -1)
+    return rhs
+
+
+def datasets(case: str, noise: float = 0.01):
+    spec = ModelSpec.from_config(load_config({"model": MODEL}).model)
+    rng = np.random.default_rng(0)
+    out = []
+    for u in EXCITATIONS:
+        system = System(("x", "x_dot"), {}, _rhs(WITHHELD[case][1]), (0.0, 0.0), 40.0, 2000, {"u": u}, ("x", "u"))
+        sim = {k: v.numpy() for k, v in measure(system, rtol=1e-7, atol=1e-9).items()}
+        measured = {"x": sim["x"] + noise * sim["x"].std() * rng.standard_normal(sim["x"].size), "u": sim["u"]}
+        out.append(build_dataset(sim["t"], measured, DataConfig(derivatives="savgol"), spec, {"source": case},
+                                 torch.float64))
+    return out
+
+
+@lru_cache(maxsize=None)
+def report(case: str, max_effects: int = 3):
+    train, held_out = datasets(case)
+    options = DiagnoseOptions(**{**OPTIONS.__dict__, "max_effects": max_effects})
+    return diagnose({"model": MODEL}, data=train, validation=held_out, options=options)
+
+
+def test_two_withheld_effects_are_both_found_in_turn():
+    r = report("coulomb_and_cubic")
+    effects = r.in_turn["effects"]
+    assert {e["effect"] for e in effects} == WITHHELD["coulomb_and_cubic"][0]  # either order
+    assert [e["step"] for e in effects] == [1, 2]
+    assert r.in_turn["stopped"] == "no significant gap remains"
+    assert r.verdict_kind is Verdict.EXPLAINED and ", then " in r.verdict
+    for e in effects:  # each effect's component is its own signal: total exponent gamma + 1
+        assert e["exponent"] + 1.0 == pytest.approx(TOTAL_EXPONENT[e["effect"]], abs=0.2)
+        # each step shrinks the held-out gap of the model before it (weak form and free run)
+        assert e["heldout_rmse"]["after"] < 0.6 * e["heldout_rmse"]["before"]
+        assert e["free_run_nrmse"]["after"] < e["free_run_nrmse"]["before"]
+    # the second step starts from the first's adapted structure, and the final model is the second's
+    assert f"**{effects[0]['exponent']:.6g}" in effects[1]["starting_equation"]
+    assert r.in_turn["final_model"]["x_ddot"] == effects[1]["adapted_equation"]
+    assert effects[1]["free_run_nrmse"]["after"] < 0.05
+
+
+def test_one_withheld_effect_stops_after_one():
+    r = report("coulomb")
+    assert [e["effect"] for e in r.in_turn["effects"]] == ["Coulomb friction"]
+    assert r.in_turn["stopped"] == "no significant gap remains"
+    assert r.verdict == "gap explained by Coulomb friction"
+
+
+def test_nothing_withheld_adds_nothing():
+    r = report("none")
+    assert r.verdict_kind is Verdict.NO_GAP
+    assert r.in_turn["effects"] == [] and r.in_turn["stopped"] == "no significant gap remains"
+
+
+def test_max_effects_bounds_the_loop():
+    r = report("coulomb_and_cubic", max_effects=1)
+    assert len(r.in_turn["effects"]) == 1
+    assert "--max-effects" in r.in_turn["stopped"]
+    assert r.in_turn["effects"][0] == report("coulomb_and_cubic").in_turn["effects"][0]
+
+
+def test_report_files_list_the_effects(tmp_path):
+    r = report("coulomb_and_cubic")
+    r.save(tmp_path, plots=False)
+    text = (tmp_path / "report.md").read_text()
+    assert "## Effects in turn" in text and "Stopped: no significant gap remains." in text
+    assert "effects in turn stopped: no significant gap remains" in str(r)
+
+
+def test_adapted_structure_as_starting_model_computes_the_adapted_rate():
+    spec = ModelSpec.from_config(load_config({"model": MODEL}).model)
+    equation = spec.equations[0]
+    extended = extended_equation(equation)
+    hypotheses = enumerate_hypotheses(equation)
+    choices, _ = encode(equation, hypotheses)
+    pick = next(c for c, h in enumerate(hypotheses) if h.kind == "additive" and h.component == 0 and h.function == 0)
+    multiplicative = next(c for c, h in enumerate(hypotheses) if h.kind == "multiplicative" and h.component == 1)
+    rows = [0, 0, pick]  # start, retuned, adapted (the adapted model is row 2)
+    for adapted, gamma in ((pick, -0.97), (multiplicative, 0.5)):
+        rows[2] = adapted
+        choice = choices[rows]
+        g = torch.zeros(3, choice.shape[1], dtype=torch.float64)
+        g[2] = torch.tensor([0.0, 0.0, gamma, 0.0]) if adapted == pick else torch.tensor([0.0, gamma, 0.0, 0.0])
+        theta = torch.tensor([[-0.5, -4.0, 0.0, 0.0]] * 3, dtype=torch.float64)
+        theta[2, 2] = -0.6
+        scale = torch.tensor([1.7, 0.8, 1.0, 1.0], dtype=torch.float64)  # |f/s|^gamma: s folded into theta
+        model = EquationModel(extended, choice, g, theta, torch.ones(3, 1, dtype=torch.float64), scale)
+        components = adapted_components(equation, model)
+        config = load_config({"model": {**MODEL, "equations": [{**MODEL["equations"][0], "components": components}]}})
+        written = ModelSpec.from_config(config.model).equations[0]
+        t = torch.linspace(0, 6, 301, dtype=torch.float64)
+        values = {"x": torch.sin(t), "x_dot": torch.cos(1.3 * t), "u": torch.sin(0.7 * t)}
+        rate = sum(float(c.theta({})) * c.term(values) for c in written.components)
+        expected = model.rate({k: v.unsqueeze(0) for k, v in values.items()})[2]
+        assert torch.allclose(rate, expected, rtol=1e-6, atol=1e-6)
+        assert len(written.components) == (4 if adapted == pick else 3)
+
+
+def test_max_effects_is_checked():
+    with pytest.raises(ConfigError, match="max_effects"):
+        DiagnoseOptions(max_effects=0)
+    assert main(["diagnose", "configs/msd_coulomb.yaml", "--max-effects", "0", "--out", "/nonexistent/x"]) == 2
