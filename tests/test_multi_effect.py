@@ -1,6 +1,7 @@
 """Several effects in turn: a mass-spring-damper with two withheld effects gets both, in either
-order; with one, exactly one; with none, none. And the adapted structure written as a starting
-model computes the adapted model's rate."""
+order (cubic stiffness first, or quadratic drag first, found beside a provisional power law); with
+one, exactly one; with none, none. And the adapted structure written as a starting model computes
+the adapted model's rate."""
 from functools import lru_cache
 
 import numpy as np
@@ -10,9 +11,10 @@ import torch
 from msam_torch.cli import main
 from msam_torch.config import DataConfig, load_config
 from msam_torch.data import build_dataset
-from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
+from msam_torch.diagnose import DiagnoseOptions, EquationGap, GapReport, Verdict, diagnose
 from msam_torch.diagnose.adapted import adapted_components
 from msam_torch.diagnose.hypotheses import encode, enumerate_hypotheses, extended_equation
+from msam_torch.diagnose.multi import in_turn
 from msam_torch.errors import ConfigError
 from msam_torch.simulation import EquationModel
 from msam_torch.spec import ModelSpec
@@ -29,10 +31,11 @@ EXCITATIONS = (multisine((0.4, 0.7, 1.1, 1.5, 1.9, 2.4, 3.0, 3.7), 2.5), multisi
 WITHHELD = {  # name -> (catalogue names, force the starting model lacks)
     "coulomb_and_cubic": ({"Coulomb friction", "hardening cubic stiffness"},
                           lambda x, v: 0.6 * torch.tanh(v / 0.01) + 2.0 * x**3),
+    "drag_and_cubic": ({"quadratic drag", "hardening cubic stiffness"}, lambda x, v: 0.4 * v * v.abs() + 2.0 * x**3),
     "coulomb": ({"Coulomb friction"}, lambda x, v: 0.6 * torch.tanh(v / 0.01)),
     "none": (set(), lambda x, v: 0.0 * x),
 }
-TOTAL_EXPONENT = {"Coulomb friction": 0.0, "hardening cubic stiffness": 3.0}  # on the effect's signal
+TOTAL_EXPONENT = {"Coulomb friction": 0.0, "hardening cubic stiffness": 3.0, "quadratic drag": 2.0}  # on the effect's signal
 OPTIONS = DiagnoseOptions(bootstrap=8, steps=20)
 
 
@@ -63,12 +66,13 @@ def report(case: str, max_effects: int = 3):
     return diagnose({"model": MODEL}, data=train, validation=held_out, options=options)
 
 
-def test_two_withheld_effects_are_both_found_in_turn():
-    r = report("coulomb_and_cubic")
+@pytest.mark.parametrize("case", ["coulomb_and_cubic", "drag_and_cubic"])
+def test_two_withheld_effects_are_both_found_in_turn(case):
+    r = report(case)
     effects = r.in_turn["effects"]
-    assert {e["effect"] for e in effects} == WITHHELD["coulomb_and_cubic"][0]  # either order
+    assert {e["effect"] for e in effects} == WITHHELD[case][0]  # either order
     assert [e["step"] for e in effects] == [1, 2]
-    assert r.in_turn["stopped"] == "no significant gap remains"
+    assert "--max-effects" not in r.in_turn["stopped"]  # no third effect: the loop stopped on its own
     assert r.verdict_kind is Verdict.EXPLAINED and ", then " in r.verdict
     for e in effects:  # each effect's component is its own signal: total exponent gamma + 1
         assert e["exponent"] + 1.0 == pytest.approx(TOTAL_EXPONENT[e["effect"]], abs=0.2)
@@ -79,6 +83,54 @@ def test_two_withheld_effects_are_both_found_in_turn():
     assert f"**{effects[0]['exponent']:.6g}" in effects[1]["starting_equation"]
     assert r.in_turn["final_model"]["x_ddot"] == effects[1]["adapted_equation"]
     assert effects[1]["free_run_nrmse"]["after"] < 0.05
+
+
+def _gap(target, kind, effect=None, start="start", adapted="adapted"):
+    return EquationGap(target=target, significant=kind is not Verdict.NO_GAP, verdict_kind=kind, effect=effect,
+                       hypothesis="h", exponent=1.0, catalogue_exponent=None, start_equation=start,
+                       retuned_equation="retuned", adapted_equation=adapted,
+                       confidence={"win_frequency": 1.0}, improvement={"retuned_rmse": 1.0, "adapted_rmse": 0.5,
+                                                                       "relative": 0.5},
+                       structure_left=0.0, components=[], ranking=[], where={}, estimator={})
+
+
+def test_an_effect_biased_by_another_is_accepted_once_that_one_is_in():
+    """Scripted rounds: the first effect is significant but not named (biased by a second one
+    missing); beside it, added provisionally, the second is named; the model then holds the second
+    without the provisional one, and the first is named. Both accepted, nothing provisional kept."""
+    start = load_config({"model": MODEL})
+    components = MODEL["equations"][0]["components"]
+    add = lambda config, term: load_config({"model": {**config.model.model_dump(mode="json", exclude_none=True),
+                                                      "equations": [{**MODEL["equations"][0], "components": [
+                                                          *config.model.model_dump()["equations"][0]["components"],
+                                                          {"term": term, "theta": -1.0, "adjustable": False}]}]}})
+    seen = []
+
+    def diagnose_round(config):
+        terms = [c.term for c in config.model.equations[0].components]
+        seen.append(terms)
+        drag, cubic = "x_dot*abs(x_dot)**1", "x*abs(x)**2"
+        if terms == [c["term"] for c in components]:  # the user's start: cubic significant, not named
+            kind, effect, term = Verdict.NOT_EXPLAINED, None, "x*abs(x)**2.3"
+        elif drag not in terms:  # beside the provisional power law of x: drag named
+            kind, effect, term = Verdict.EXPLAINED, "quadratic drag", drag
+        elif cubic not in terms:
+            kind, effect, term = Verdict.EXPLAINED, "hardening cubic stiffness", cubic
+        else:
+            kind, effect, term = Verdict.NO_GAP, None, None
+        report = GapReport(kind, kind.text(effect), (_gap("x_ddot", kind, effect),), {}, {}, {}, {}, 0.0)
+        return report, lambda targets: add(config, term)
+
+    r = in_turn(start, diagnose_round, max_effects=3)
+    assert [e["effect"] for e in r.in_turn["effects"]] == ["quadratic drag", "hardening cubic stiffness"]
+    assert r.in_turn["effects"][0]["beside_provisional"] == ["adapted"]
+    assert r.in_turn["effects"][1]["beside_provisional"] is None
+    assert r.verdict_kind is Verdict.EXPLAINED
+    assert r.verdict == "gap explained by quadratic drag, then hardening cubic stiffness"
+    assert r.in_turn["stopped"] == "no significant gap remains"
+    start_terms = [c["term"] for c in components]
+    assert seen == [start_terms, start_terms + ["x*abs(x)**2.3"], start_terms + ["x_dot*abs(x_dot)**1"],
+                    start_terms + ["x_dot*abs(x_dot)**1", "x*abs(x)**2"]]  # the provisional term taken out
 
 
 def test_one_withheld_effect_stops_after_one():

@@ -72,3 +72,20 @@ def with_effects(config: Config, spec_equations: tuple[Equation, ...], models: d
             equations[e]["components"] = adapted_components(equation, models[equation.target])
     return load_config(raw)
 
+
+
+def without(config: Config, before: Config, provisional: Config) -> Config:
+    """``config`` less the effects that ``provisional`` added to ``before`` (the configs share the
+    component order of :func:`adapted_components`): a component it added is removed, and a
+    component whose term it replaced, untouched since, gets back its term and nominal theta."""
+    raw = config.model_dump(mode="json", exclude_none=True)
+    for e, equation in enumerate(raw["model"]["equations"]):
+        old = before.model.equations[e].components
+        new = provisional.model.equations[e].components
+        added = {c.term for c in new[len(old):]}
+        components = [c for c in equation["components"] if c["term"] not in added]
+        for i, (o, n) in enumerate(zip(old, new)):
+            if o.term != n.term and components[i]["term"] == n.term:
+                components[i].update(term=o.term, theta=o.theta)
+        equation["components"] = components
+    return load_config(raw)

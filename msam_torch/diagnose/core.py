@@ -10,6 +10,7 @@ effect after effect (:mod:`.multi`).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -29,7 +30,7 @@ from .multi import in_turn
 from .options import DiagnoseOptions
 from .report import GapReport
 from .simulated import diagnose_simulated
-from .verdict import Verdict, overall
+from .verdict import overall
 
 
 def diagnose(config: Config | dict | str | Path, data: DataArgument = None, validation: DataArgument = None,
@@ -54,9 +55,9 @@ def diagnose(config: Config | dict | str | Path, data: DataArgument = None, vali
 
 
 def _diagnose_once(config: Config, data: DataArgument, validation: DataArgument, options: DiagnoseOptions,
-                   base_dir: Path) -> tuple[GapReport, Config | None]:
-    """One diagnosis of ``config``'s starting model, and the config with its explained effects
-    added (None when evaluated by simulation or when nothing is explained)."""
+                   base_dir: Path) -> tuple[GapReport, Callable | None]:
+    """One diagnosis of ``config``'s starting model, and a function giving the config with the
+    effects of the equations it is given added (None when evaluated by simulation)."""
     plan = prepare(config, in_memory=data is not None)
     if not isinstance(plan.evaluator, Algebraic):  # judged by simulation
         return diagnose_simulated(plan, base_dir, options, data=data, validation=validation), None
@@ -86,5 +87,5 @@ def _diagnose_once(config: Config, data: DataArgument, validation: DataArgument,
     report = GapReport(verdict_kind=kind, verdict=verdict, equations=gaps, measures=gap_measures, data=data_info,
                        options=asdict(options), config=config.model_dump(mode="json"),
                        seconds=time.perf_counter() - started, reasons=tuple(reasons), series=series)
-    explained = {e.gap.target: e.model for e in equations if e.gap.verdict_kind is Verdict.EXPLAINED}
-    return report, with_effects(config, spec.equations, explained) if kind is Verdict.EXPLAINED else None
+    models = {e.gap.target: e.model for e in equations}
+    return report, lambda targets: with_effects(config, spec.equations, {t: models[t] for t in targets})

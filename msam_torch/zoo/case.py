@@ -18,7 +18,7 @@ import yaml
 from ..spec import split_derivative
 from . import excitation
 from .domains import DOMAINS
-from .effects import DrawnEffect
+from .effects import Combined, DrawnEffect
 from .simulate import dense_grid, effect_share, rms, signals, simulate, unabsorbed
 from .system import System
 
@@ -46,7 +46,7 @@ class Case:
     metadata: dict
     clean: dict = field(repr=False, default_factory=dict)
     system: System | None = field(repr=False, default=None)
-    effect: DrawnEffect | None = field(repr=False, default=None)
+    effect: DrawnEffect | Combined | None = field(repr=False, default=None)
 
     def write(self, folder: str | Path) -> Path:
         """``config.yaml``, ``train.csv``, ``validation.csv`` and ``truth.json`` in ``folder``."""
@@ -89,14 +89,17 @@ def generate(seed: int, domains: tuple[str, ...] | None = None, noise: float | N
         effects = [e for e in system.effects if e.catalogued == (kind == "catalogued")]
         if kind != "null" and not effects:
             continue  # an autonomous system has no input to distort
-        spec = None if kind == "null" else effects[int(rng.integers(len(effects)))]
-        case = _draw(rng, seed, system, spec, noise, samples)
+        specs = () if kind == "null" else (effects[int(rng.integers(len(effects)))],)
+        case = draw(rng, seed, system, specs, noise, samples)
         if case is not None:
             return case
     raise RuntimeError(f"seed {seed}: no well-posed case in {ATTEMPTS} draws of domain {domain}")
 
 
-def _draw(rng, seed, system: System, spec, noise, samples) -> Case | None:
+def draw(rng, seed, system: System, specs: tuple, noise, samples) -> Case | None:
+    """A case of ``system`` withholding the effects ``specs`` (none, one, or several catalogued
+    power laws: :class:`~.effects.Combined`), or None when the draw is not well posed (each
+    withheld effect's share at least :data:`SHARE_FLOOR`)."""
     noise = float(rng.choice(NOISE_LEVELS)) if noise is None else noise
     sample_rate = rng.uniform(20.0, 100.0) / system.period
     t = np.arange(samples) / sample_rate
@@ -105,9 +108,10 @@ def _draw(rng, seed, system: System, spec, noise, samples) -> Case | None:
         inputs, info = _inputs(rng, system, t, sample_rate)
         initial = _initial(rng, system)
         runs.append((label, inputs, initial, info))
-    effect = _size(rng, system, spec, runs[0], t)
-    if spec is not None and effect is None:
+    parts = [_size(rng, system, spec, runs[0], t) for spec in specs]
+    if None in parts:
         return None
+    effect = None if not parts else parts[0] if len(parts) == 1 else Combined(tuple(parts))
     records, shares = {}, {}
     for label, inputs, initial, info in runs:
         smooth = _smooth(info)
@@ -118,9 +122,11 @@ def _draw(rng, seed, system: System, spec, noise, samples) -> Case | None:
         values = signals(system, states, inputs, t)
         felt_values = signals(system, {}, felt, t)
         shares[label] = effect_share(system, values, effect, felt_values) if effect is not None else {}
+        if len(parts) > 1 and label == "train":
+            shares["parts"] = [max(effect_share(system, values, p).values()) for p in parts]
         records[label] = (t, values, felt_values, info)
     share = max(shares["train"].values(), default=0.0)
-    if effect is not None and share < SHARE_FLOOR:
+    if effect is not None and min([share, *shares.get("parts", [])]) < SHARE_FLOOR:
         return None
     return _case(rng, seed, system, effect, noise, records, share, shares)
 
@@ -241,6 +247,11 @@ def _config(rng, system: System, scale: dict, measured: list) -> tuple[dict, dic
 def _truth(system: System, effect, scale: dict, share: float, shares: dict, true_theta: dict) -> dict:
     if effect is None:
         return {"kind": "null", "name": None, "share": 0.0, "theta": true_theta}
+    if isinstance(effect, Combined):  # each part as a single effect's truth, with its own share
+        parts = [_truth(system, p, scale, s, {**shares, "train": {}}, true_theta) for p, s in zip(effect.parts, shares["parts"])]
+        return {"kind": "several", "effects": parts, "share": share, "share_by_equation": shares["train"],
+                "share_floor": SHARE_FLOOR, "theta": true_theta,
+                "targets": sorted({t for p in parts for t in p["targets"]})}
     out = {"kind": "catalogued" if effect.effect.catalogued else "out_of_catalogue", "share": share,
            "share_by_equation": shares["train"], "share_floor": SHARE_FLOOR, "theta": true_theta, **effect.describe()}
     e = effect.effect

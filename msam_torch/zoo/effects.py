@@ -66,6 +66,35 @@ class DrawnEffect:
         return out
 
 
+@dataclass(frozen=True)
+class Combined:
+    """Several catalogued power-law effects withheld at once (each a :class:`DrawnEffect` with its own
+    coefficient); the system feels their sum. No input nonlinearity: the input is felt as it is."""
+
+    parts: tuple[DrawnEffect, ...]
+    input: str = ""
+
+    def replaces(self, target: str, term: str) -> bool:
+        return any(p.replaces(target, term) for p in self.parts)
+
+    def contribution(self, target: str, values: dict):
+        return sum(p.contribution(target, values) for p in self.parts)
+
+    def shape_input(self, u: np.ndarray) -> np.ndarray:
+        return u
+
+
+def separable(a: Effect, b: Effect) -> bool:
+    """Two catalogued power laws a diagnosis can tell apart when both are withheld: not both replacing
+    the same component, and on the same component and function at least one apart in exponent (closer
+    laws on one signal sum to one law between them)."""
+    same = (a.target, a.component, a.function) == (b.target, b.component, b.function)
+    if same and "multiplicative" in (a.form, b.form):
+        return False
+    apart = max(b.exponent[0] - a.exponent[1], a.exponent[0] - b.exponent[1])
+    return not same or apart >= 1.0
+
+
 def play(u: np.ndarray, width: float) -> np.ndarray:
     """The play (backlash) operator of half-width ``width``, started centred on ``u[0]``."""
     out = np.empty_like(u)

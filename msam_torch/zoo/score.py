@@ -9,7 +9,10 @@ zoo case's truth.
 - the theta re-fitted starting model: every theta within 3 % of the truth (null cases);
 - held-out free runs: the re-fitted start no worse than the nominal one (1 % slack), and a
   *diverged* run (NRMSE not finite or above :data:`DIVERGED`) beside a verdict that is not
-  "inconclusive".
+  "inconclusive";
+- cases withholding several effects (:mod:`.pairs`): how many of them the effects added in turn
+  (the report's ``in_turn``) found, in any order; every case: the *spurious* effects added in turn
+  (matching no withheld effect).
 """
 from __future__ import annotations
 
@@ -46,11 +49,17 @@ def _component(hypothesis: str) -> str:
 
 def effect_matches(gap: dict, truth: dict) -> bool:
     """``gap`` (one equation of a report) names the truth's effect in its form (see module doc)."""
-    if not explained(gap["verdict"]) or not gap.get("effect") or truth["name"].lower() not in gap["effect"].lower():
+    return explained(gap["verdict"]) and step_matches(gap, truth)
+
+
+def step_matches(step: dict, truth: dict) -> bool:
+    """An effect (an equation's, or a step of the report's ``in_turn``: ``effect``, ``hypothesis``,
+    ``exponent``) is the truth's: its name, component, function and exponent."""
+    if not step.get("effect") or truth["name"].lower() not in step["effect"].lower():
         return False
-    hypothesis = gap["hypothesis"]
+    hypothesis = step["hypothesis"]
     return (_component(hypothesis) == truth["component"] and f"abs({truth['function']})" in hypothesis
-            and gap["exponent"] is not None and abs(gap["exponent"] - truth["exponent"]) <= TOLERANCE)
+            and step["exponent"] is not None and abs(step["exponent"] - truth["exponent"]) <= TOLERANCE)
 
 
 def score(report, truth: dict) -> dict:
@@ -65,8 +74,15 @@ def score(report, truth: dict) -> dict:
     elif kind == "null":
         out["no_gap"] = not any(g["significant"] for g in gaps.values())
         out["theta_ok"] = theta_within(gaps, truth["theta"], THETA_TOLERANCE)
+    elif kind == "several":  # both found among the effects added in turn, in either order
+        steps = r.get("in_turn", {}).get("effects", [])
+        out["found"] = sum(any(step_matches(s, t) and s["target"] == t["target"] for s in steps) for t in truth["effects"])
+        out["all_found"] = out["found"] == len(truth["effects"])
     else:
         out["confident_wrong"] = any(explained(g["verdict"]) for g in gaps.values())
+    steps = r.get("in_turn", {}).get("effects", [])
+    real = truth.get("effects", [truth] if kind == "catalogued" else [])
+    out["spurious"] = sum(not any(step_matches(s, t) and s["target"] == t["target"] for t in real) for s in steps)
     free = r.get("measures", {}).get("free_run", {}).get("held_out", {}).get("nrmse")
     if free:
         nrmse = {k: float(v) if v is not None else math.inf for k, v in free.items()}
