@@ -19,6 +19,8 @@ from msam_torch.errors import ConfigError
 from msam_torch.simulation import EquationModel
 from msam_torch.spec import ModelSpec
 from msam_torch.systems import System, measure, multisine
+from msam_torch.zoo import SHARE_FLOOR, generate_pair, score
+from msam_torch.zoo.effects import separable
 
 MODEL = {
     "states": ["x", "x_dot"], "inputs": ["u"], "parameters": {"m": 1.0, "c": 0.5, "k": 4.0},
@@ -194,3 +196,28 @@ def test_max_effects_is_checked():
     with pytest.raises(ConfigError, match="max_effects"):
         DiagnoseOptions(max_effects=0)
     assert main(["diagnose", "configs/msd_coulomb.yaml", "--max-effects", "0", "--out", "/nonexistent/x"]) == 2
+
+
+def test_two_effect_zoo_cases_withhold_two_separable_effects_and_are_scored_in_any_order():
+    case = generate_pair(7, samples=400)
+    parts = case.truth["effects"]
+    assert case.truth["kind"] == "several" and len(parts) == 2 and parts[0]["name"] != parts[1]["name"]
+    assert min(p["share"] for p in parts) >= SHARE_FLOOR
+    drawn = case.effect.parts
+    assert separable(drawn[0].effect, drawn[1].effect)
+    # the system feels both (two additive laws here): its rate is the starting model's plus both terms
+    assert [p["form"] for p in parts] == ["additive", "additive"]
+    frame = case.clean["train"]
+    scale = case.metadata["scale"]
+    values = {n: frame[n].to_numpy() / scale[n] for n in scale}
+    values.update({u: frame[f"{u}_felt"].to_numpy() / scale[u] for u in case.system.inputs})
+    both, alone = case.system.state_rates(values, case.effect), case.system.state_rates(values)
+    for target in both:
+        assert np.allclose(both[target], alone[target] + sum(p.contribution(target, values) for p in drawn))
+    steps = [{"target": p["target"], "effect": p["name"], "exponent": p["exponent"],
+              "hypothesis": f"{p['component']} + {p['component']}*abs({p['function']})^gamma"} for p in reversed(parts)]
+    report = {"verdict": "gap explained by ...", "equations": [], "in_turn": {"effects": steps}}
+    assert score.score(report, case.truth)["all_found"] and score.score(report, case.truth)["spurious"] == 0
+    wrong = [{**steps[0], "exponent": steps[0]["exponent"] + 0.5}]
+    scored = score.score({**report, "in_turn": {"effects": wrong}}, case.truth)
+    assert scored["found"] == 0 and scored["spurious"] == 1

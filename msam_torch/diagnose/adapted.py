@@ -1,6 +1,7 @@
-"""The adapted structure written as a starting model: the accepted effect of every explained
-equation put into the config's ``model`` section, so that the next diagnosis of effects in turn
-(:mod:`.multi`) starts from it (Algorithm 1's adapted model, Eq. 9, becomes the new Eq. 2).
+"""The adapted structure written as a starting model: the effect of each given equation put into
+the config's ``model`` section, so that the next diagnosis of effects in turn (:mod:`.multi`)
+starts from it (the adapted model, Eq. 9, becomes the new Eq. 2); and a provisional effect taken
+out again (:func:`without`).
 
 A multiplicative effect replaces its component ``M`` by ``M |f|^gamma`` (the component keeps its
 adjustability); an additive one adds a fixed component ``theta' M |f|^gamma`` beside ``M``; every
