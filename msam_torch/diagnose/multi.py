@@ -16,7 +16,8 @@ ever kept or reported as accepted.
 The report returned is the first diagnosis (of the user's starting model) with ``in_turn``: every
 accepted effect in order with the held-out gap before and after it (weak-form RMSE and free-run
 NRMSE; for an effect found beside a provisional one, of the models holding it), why the loop
-stopped, and the final model; its verdict names the accepted effects in order.
+stopped, the final model and the number of diagnoses run; its verdict names the accepted effects
+in order, its ``seconds`` are those of all the diagnoses.
 """
 from __future__ import annotations
 
@@ -39,13 +40,20 @@ def in_turn(config: Config, diagnose_round: Round, max_effects: int) -> GapRepor
     """Diagnose ``config``, then the adapted structure, and so on (module docstring);
     ``diagnose_round(config)`` returns a report and a function adding the effects of the given
     equations to ``config`` (None when the structure cannot be diagnosed further)."""
-    first, adapt = diagnose_round(config)
+    seconds = []
+
+    def timed(config: Config):
+        result = diagnose_round(config)
+        seconds.append(result[0].seconds)
+        return result
+
+    first, adapt = timed(config)
     report, model, steps, final, step = first, config, [], {}, 1
     while True:
         found, beside = report, None
         if report.verdict_kind is Verdict.NOT_EXPLAINED and adapt is not None:
             provisional = adapt([g.target for g in report.equations if g.significant])
-            found, adapt_beside = diagnose_round(provisional)
+            found, adapt_beside = timed(provisional)
             beside = [g.adapted_equation for g in report.equations if g.significant]
         if found.verdict_kind is not Verdict.EXPLAINED:
             stopped = STOPPED[report.verdict_kind] + "".join(f"; {r}" for r in report.reasons)
@@ -63,15 +71,15 @@ def in_turn(config: Config, diagnose_round: Round, max_effects: int) -> GapRepor
             stopped = "the adapted structure is not diagnosed further (evaluated by simulation)"
             break
         model = adapt(accepted) if beside is None else without(adapt_beside(accepted), model, provisional)
-        report, adapt = diagnose_round(model)
+        report, adapt = timed(model)
         step += 1
     several = len(first.equations) > 1
     named = [s["effect"] + (f" in {s['target']}" if several else "") for s in steps]
     kept = not steps or (first.verdict_kind is Verdict.EXPLAINED and all(s["step"] == 1 for s in steps))
     verdict = first.verdict if kept else Verdict.EXPLAINED.text(", then ".join(named))
     kind = Verdict.EXPLAINED if steps else first.verdict_kind
-    return replace(first, verdict_kind=kind, verdict=verdict, in_turn={"effects": steps, "stopped": stopped,
-                                                                       "final_model": final})
+    return replace(first, verdict_kind=kind, verdict=verdict, seconds=sum(seconds),
+                   in_turn={"effects": steps, "stopped": stopped, "final_model": final, "diagnoses": len(seconds)})
 
 
 def _step(report: GapReport, gap, step: int, beside: list | None) -> dict:
