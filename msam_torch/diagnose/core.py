@@ -51,7 +51,8 @@ def diagnose(config: Config | dict | str | Path, data: DataArgument = None, vali
         base_dir = Path(config).parent if isinstance(config, (str, Path)) else Path(".")
     if not isinstance(config, Config):
         config = load_config(config, overrides)
-    return in_turn(config, lambda c: _diagnose_once(c, data, validation, options, Path(base_dir)), options.max_effects)
+    return in_turn(config, lambda c: _diagnose_once(c, data, validation, options, Path(base_dir)),
+                   options.max_effects)
 
 
 def _diagnose_once(config: Config, data: DataArgument, validation: DataArgument, options: DiagnoseOptions,

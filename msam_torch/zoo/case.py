@@ -248,7 +248,8 @@ def _truth(system: System, effect, scale: dict, share: float, shares: dict, true
     if effect is None:
         return {"kind": "null", "name": None, "share": 0.0, "theta": true_theta}
     if isinstance(effect, Combined):  # each part as a single effect's truth, with its own share
-        parts = [_truth(system, p, scale, s, {**shares, "train": {}}, true_theta) for p, s in zip(effect.parts, shares["parts"])]
+        parts = [_truth(system, p, scale, s, {**shares, "train": {}}, true_theta)
+                 for p, s in zip(effect.parts, shares["parts"])]
         return {"kind": "several", "effects": parts, "share": share, "share_by_equation": shares["train"],
                 "share_floor": SHARE_FLOOR, "theta": true_theta,
                 "targets": sorted({t for p in parts for t in p["targets"]})}

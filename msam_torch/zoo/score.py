@@ -76,7 +76,8 @@ def score(report, truth: dict) -> dict:
         out["theta_ok"] = theta_within(gaps, truth["theta"], THETA_TOLERANCE)
     elif kind == "several":  # both found among the effects added in turn, in either order
         steps = r.get("in_turn", {}).get("effects", [])
-        out["found"] = sum(any(step_matches(s, t) and s["target"] == t["target"] for s in steps) for t in truth["effects"])
+        out["found"] = sum(any(step_matches(s, t) and s["target"] == t["target"] for s in steps)
+                           for t in truth["effects"])
         out["all_found"] = out["found"] == len(truth["effects"])
     else:
         out["confident_wrong"] = any(explained(g["verdict"]) for g in gaps.values())
