@@ -83,7 +83,7 @@ def test_two_withheld_effects_are_both_found_in_turn(case):
         assert e["free_run_nrmse"]["after"] < e["free_run_nrmse"]["before"]
     # the second step starts from the first's adapted structure, and the final model is the second's
     assert f"**{effects[0]['exponent']:.6g}" in effects[1]["starting_equation"]
-    assert r.in_turn["final_model"]["x_ddot"] == effects[1]["adapted_equation"]
+    assert all(f"**{e['exponent']:.6g}" in r.in_turn["final_model"]["x_ddot"] for e in effects)  # both in
     assert effects[1]["free_run_nrmse"]["after"] < 0.05
 
 

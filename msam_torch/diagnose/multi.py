@@ -16,7 +16,7 @@ ever kept or reported as accepted.
 The report returned is the first diagnosis (of the user's starting model) with ``in_turn``: every
 accepted effect in order with the held-out gap before and after it (weak-form RMSE and free-run
 NRMSE; for an effect found beside a provisional one, of the models holding it), why the loop
-stopped, the final model and the number of diagnoses run; its verdict names the accepted effects
+stopped, the final model (every accepted effect in, theta re-fitted) and the number of diagnoses run; its verdict names the accepted effects
 in order, its ``seconds`` are those of all the diagnoses.
 """
 from __future__ import annotations
@@ -48,7 +48,7 @@ def in_turn(config: Config, diagnose_round: Round, max_effects: int) -> GapRepor
         return result
 
     first, adapt = timed(config)
-    report, model, steps, final, step = first, config, [], {}, 1
+    report, model, steps, step = first, config, [], 1
     while True:
         found, beside = report, None
         if report.verdict_kind is Verdict.NOT_EXPLAINED and adapt is not None:
@@ -59,19 +59,21 @@ def in_turn(config: Config, diagnose_round: Round, max_effects: int) -> GapRepor
             stopped = STOPPED[report.verdict_kind] + "".join(f"; {r}" for r in report.reasons)
             if beside is not None:
                 stopped += "; nor beside the best power law added provisionally"
+            final = _equations(report, ())  # the model diagnosed last, theta re-fitted
             break
         accepted = [g.target for g in found.equations if g.verdict_kind is Verdict.EXPLAINED]
         steps += [_step(found, g, step, beside) for g in found.equations if g.target in accepted]
-        final = {g.target: g.adapted_equation if g.target in accepted else g.retuned_equation
-                 for g in found.equations}
-        if step >= max_effects:
-            stopped = f"the most effects in turn ({max_effects}, --max-effects) were added"
-            break
+        limit = None if step < max_effects else f"the most effects in turn ({max_effects}, --max-effects) were added"
         if adapt is None:
-            stopped = "the adapted structure is not diagnosed further (evaluated by simulation)"
+            limit = "the adapted structure is not diagnosed further (evaluated by simulation)"
+        if limit and beside is None:
+            stopped, final = limit, _equations(found, accepted)
             break
         model = adapt(accepted) if beside is None else without(adapt_beside(accepted), model, provisional)
         report, adapt = timed(model)
+        if limit:  # the model without the provisional effect, diagnosed for its equations
+            stopped, final = limit, _equations(report, ())
+            break
         step += 1
     several = len(first.equations) > 1
     named = [s["effect"] + (f" in {s['target']}" if several else "") for s in steps]
@@ -80,6 +82,11 @@ def in_turn(config: Config, diagnose_round: Round, max_effects: int) -> GapRepor
     kind = Verdict.EXPLAINED if steps else first.verdict_kind
     return replace(first, verdict_kind=kind, verdict=verdict, seconds=sum(seconds),
                    in_turn={"effects": steps, "stopped": stopped, "final_model": final, "diagnoses": len(seconds)})
+
+
+def _equations(report: GapReport, adapted) -> dict:
+    """Per equation: its adapted equation (targets in ``adapted``) or its theta re-fitted one."""
+    return {g.target: g.adapted_equation if g.target in adapted else g.retuned_equation for g in report.equations}
 
 
 def _step(report: GapReport, gap, step: int, beside: list | None) -> dict:
