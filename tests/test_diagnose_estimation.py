@@ -19,7 +19,7 @@ from msam_torch.systems import WITHHELD
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
 from bench_diagnose import records  # noqa: E402  (the benchmark's records: one source of them)
 
-QUICK = DiagnoseOptions(bootstrap=0, steps=20, free_run=False)
+QUICK = DiagnoseOptions(bootstrap=0, steps=20, free_run=False, max_effects=1)  # the first effect: estimation, not the loop
 
 
 def test_band_edge_of_a_sine():
