@@ -62,10 +62,9 @@ def datasets(case: str, noise: float = 0.01):
 
 
 @lru_cache(maxsize=None)
-def report(case: str, max_effects: int = 3):
+def report(case: str):
     train, held_out = datasets(case)
-    options = DiagnoseOptions(**{**OPTIONS.__dict__, "max_effects": max_effects})
-    return diagnose({"model": MODEL}, data=train, validation=held_out, options=options)
+    return diagnose({"model": MODEL}, data=train, validation=held_out, options=OPTIONS)
 
 
 @pytest.mark.parametrize("case", ["coulomb_and_cubic", "drag_and_cubic"])
@@ -100,43 +99,57 @@ def _gap(target, kind, effect=None, start="start", adapted="adapted"):
                        structure_left=0.0, components=[], ranking=[], where={}, estimator={})
 
 
-def test_an_effect_biased_by_another_is_accepted_once_that_one_is_in():
-    """Scripted rounds: the first effect is significant but not named (biased by a second one
-    missing); beside it, added provisionally, the second is named; the model then holds the second
-    without the provisional one, and the first is named. Both accepted, nothing provisional kept."""
-    start = load_config({"model": MODEL})
-    components = MODEL["equations"][0]["components"]
-    add = lambda config, term: load_config({"model": {**config.model.model_dump(mode="json", exclude_none=True),
-                                                      "equations": [{**MODEL["equations"][0], "components": [
-                                                          *config.model.model_dump()["equations"][0]["components"],
-                                                          {"term": term, "theta": -1.0, "adjustable": False}]}]}})
-    seen = []
+DRAG, CUBIC, BIASED = "x_dot*abs(x_dot)**1", "x*abs(x)**2", "x*abs(x)**2.3"
+START_TERMS = [c["term"] for c in MODEL["equations"][0]["components"]]
+
+
+def scripted(seen: list):
+    """Diagnoses as a script: at the user's start the cubic stiffness is significant but not named
+    (biased by the drag missing); beside it, added provisionally, the drag is named; with the drag
+    in, the cubic stiffness is named; with both, no gap. ``seen`` collects each model's terms."""
+    def add(config, term):
+        raw = config.model.model_dump(mode="json", exclude_none=True)
+        raw["equations"][0]["components"].append({"term": term, "theta": -1.0, "adjustable": False})
+        return load_config({"model": raw})
 
     def diagnose_round(config):
         terms = [c.term for c in config.model.equations[0].components]
         seen.append(terms)
-        drag, cubic = "x_dot*abs(x_dot)**1", "x*abs(x)**2"
-        if terms == [c["term"] for c in components]:  # the user's start: cubic significant, not named
-            kind, effect, term = Verdict.NOT_EXPLAINED, None, "x*abs(x)**2.3"
-        elif drag not in terms:  # beside the provisional power law of x: drag named
-            kind, effect, term = Verdict.EXPLAINED, "quadratic drag", drag
-        elif cubic not in terms:
-            kind, effect, term = Verdict.EXPLAINED, "hardening cubic stiffness", cubic
+        if terms == START_TERMS:
+            kind, effect, term = Verdict.NOT_EXPLAINED, None, BIASED
+        elif DRAG not in terms:
+            kind, effect, term = Verdict.EXPLAINED, "quadratic drag", DRAG
+        elif CUBIC not in terms:
+            kind, effect, term = Verdict.EXPLAINED, "hardening cubic stiffness", CUBIC
         else:
             kind, effect, term = Verdict.NO_GAP, None, None
         report = GapReport(kind, kind.text(effect), (_gap("x_ddot", kind, effect),), {}, {}, {}, {}, 0.0)
         return report, lambda targets: add(config, term)
+    return diagnose_round
 
-    r = in_turn(start, diagnose_round, max_effects=3)
+
+def test_an_effect_biased_by_another_is_accepted_once_that_one_is_in():
+    """Both accepted in turn, the second beside a provisional power law that is taken out again."""
+    seen = []
+    r = in_turn(load_config({"model": MODEL}), scripted(seen), max_effects=3)
     assert [e["effect"] for e in r.in_turn["effects"]] == ["quadratic drag", "hardening cubic stiffness"]
     assert r.in_turn["effects"][0]["beside_provisional"] == ["adapted"]
     assert r.in_turn["effects"][1]["beside_provisional"] is None
     assert r.verdict_kind is Verdict.EXPLAINED
     assert r.verdict == "gap explained by quadratic drag, then hardening cubic stiffness"
-    assert r.in_turn["stopped"] == "no significant gap remains"
-    start_terms = [c["term"] for c in components]
-    assert seen == [start_terms, start_terms + ["x*abs(x)**2.3"], start_terms + ["x_dot*abs(x_dot)**1"],
-                    start_terms + ["x_dot*abs(x_dot)**1", "x*abs(x)**2"]]  # the provisional term taken out
+    assert r.in_turn["stopped"] == "no significant gap remains" and r.in_turn["diagnoses"] == 4
+    assert seen == [START_TERMS, START_TERMS + [BIASED], START_TERMS + [DRAG],
+                    START_TERMS + [DRAG, CUBIC]]  # the provisional term taken out
+
+
+def test_max_effects_bounds_the_loop():
+    """One effect at most: the drag, found beside the provisional term; the final model is the one
+    without that term."""
+    seen = []
+    r = in_turn(load_config({"model": MODEL}), scripted(seen), max_effects=1)
+    assert [e["effect"] for e in r.in_turn["effects"]] == ["quadratic drag"]
+    assert "--max-effects" in r.in_turn["stopped"]
+    assert seen[-1] == START_TERMS + [DRAG] and len(seen) == 3
 
 
 def test_one_withheld_effect_stops_after_one():
@@ -150,13 +163,6 @@ def test_nothing_withheld_adds_nothing():
     r = report("none")
     assert r.verdict_kind is Verdict.NO_GAP
     assert r.in_turn["effects"] == [] and r.in_turn["stopped"] == "no significant gap remains"
-
-
-def test_max_effects_bounds_the_loop():
-    r = report("coulomb_and_cubic", max_effects=1)
-    assert len(r.in_turn["effects"]) == 1
-    assert "--max-effects" in r.in_turn["stopped"]
-    assert r.in_turn["effects"][0] == report("coulomb_and_cubic").in_turn["effects"][0]
 
 
 def test_report_files_list_the_effects(tmp_path):
