@@ -8,8 +8,11 @@ Per case: the effects ``msam diagnose`` added in turn (its report's ``in_turn``)
 effects added that match nothing withheld (spurious). Cases are written to CSV files and diagnosed
 from those paths, with the default options.
 
-Run (about 10-30 s per case on 2 busy cores):
-    PYTHONPATH=. python experiments/zoo_pairs.py --pairs 24 --pair-seed-start 5000 --singles 20 --single-seed-start 5000
+Seeds: development used pair seeds 0-5 and zoo seeds 0-5; the figures in docs/diagnose.md come
+from pair seeds 5000-5019 and zoo seeds 5000-5009, not looked at before.
+
+Run (about 25 s of CPU per case; minutes on 2 busy cores):
+    PYTHONPATH=. python experiments/zoo_pairs.py --pairs 20 --pair-seed-start 5000 --singles 10 --single-seed-start 5000
 """
 from __future__ import annotations
 
