@@ -237,9 +237,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except BrokenPipeError:  # stdout closed early (| head): the files are written; say nothing more
+    except BrokenPipeError:  # stdout closed early (| head): the files are written, the printout is not
         _silence_stdout()
-        return 0
+        print("error: standard output was closed before the printout ended (broken pipe); "
+              "the files are written", file=sys.stderr)
+        return MSAMError.exit_status
     except Exception as exc:
         return _internal_error(exc, args.verbose)
 

@@ -67,3 +67,22 @@ def test_expression_outside_the_whitelist_is_rejected_with_its_key(tmp_path, cap
     assert main(["run", str(config), "--out", str(tmp_path / "out")]) == 2
     assert "model.equations[0].components[1].theta" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("command", ["run", "diagnose"])
+def test_a_closed_stdout_is_one_line_and_status_2_with_the_files_complete(tmp_path, command):
+    """`msam ... | head` closing the pipe first: no traceback, one line naming the broken pipe, the files kept."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "out"
+    process = subprocess.Popen([sys.executable, "-m", "msam_torch", command, str(CONFIGS / "harmonic.yaml"),
+                                "--out", str(out), "--quiet", *QUICK], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    process.stdout.close()  # the reader is gone before anything is printed
+    stderr = process.stderr.read()
+    assert process.wait() == 2
+    assert stderr.strip().splitlines() == [
+        "error: standard output was closed before the printout ended (broken pipe); the files are written"]
+    written = "result.json" if command == "run" else "gap_report.json"
+    assert json.loads((out / written).read_text())
