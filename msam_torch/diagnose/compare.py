@@ -19,6 +19,8 @@ from .hypotheses import Fitted
 from .options import DiagnoseOptions
 
 PER_PERIOD = 0.04  # a fixed step starts at most at this share of the band's period
+STEPS = 500  # ... and at most at this share of the record
+CHECK_STEPS = 1000  # the step is checked over this many of its steps from the record's start
 HALVINGS = 2  # a fixed step is halved at most this often (then the runs are marked not converged)
 DIVERGED = 10.0  # a free run this many standard deviations off the measurement (NRMSE) has diverged
 AGREEMENT = 1e-2  # runs at a step and twice it agree within this share of a state's magnitude
@@ -95,10 +97,11 @@ def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, serie
 def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: DiagnoseOptions, band: float) -> tuple:
     """Free runs from each set's first (estimated) state under its inputs; sets on the same time
     grid are integrated in one batch. A fixed-step solver without a given step starts at
-    :func:`~msam_torch.simulation.simulate_equations`'s default or 1/25 of the band's period, whichever is
-    shorter, and halves it until the three point models'
-    runs at the step and at twice it agree (:func:`converged`), at most :data:`HALVINGS` times
-    (each set's ``solver`` entry says whether they agreed); an adaptive one keeps its
+    :data:`PER_PERIOD` of the band's period (at most 1/:data:`STEPS` of the record) and halves it
+    until the three point models' runs at the step and at twice it agree (:func:`converged`) over
+    the first :data:`CHECK_STEPS` steps, at most :data:`HALVINGS` times (each set's ``solver``
+    entry says whether they agreed): the step follows the dynamics, not the record's length or
+    sampling, so the cost grows linearly with the record. An adaptive solver keeps its
     tolerances, ``atol`` relative to each state's measured magnitude."""
     grids = {label: d.signals["t"] for label, d in sets.items()}
     same = len(sets) == 2 and grids["train"].shape == grids["held_out"].shape and torch.allclose(
@@ -116,23 +119,29 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
         scale = {x: max(float(sets[label].signals[x].abs().max()) for label in group) for x in spec.states}
         atol = torch.tensor([options.atol * max(scale[x], torch.finfo(t.dtype).tiny) for x in spec.states],
                             dtype=t.dtype, device=t.device)
-        run = lambda models, step, keep=None: simulate(
-            spec, models, t, {u: v if keep is None else v[keep] for u, v in inputs.items()},
+        run = lambda models, step, n, keep=None: simulate(
+            spec, models, t[:n], {u: (v if keep is None else v[keep])[..., :n] for u, v in inputs.items()},
             {x: v if keep is None else v[keep] for x, v in initial.items()}, method=options.solver, step=step,
             rtol=options.rtol, atol=atol, scale=scale)
-        step, agree = options.solver_step, True
-        trajectory = run(batch, step)
+        step, agree, trajectory = options.solver_step, True, None
         if fixed and step is None:  # the run at twice the step agrees, or the step is halved
-            step = min(float(t[1] - t[0]) * max(1, t.shape[0] // 500), PER_PERIOD / band)  # simulate's default
+            step = min(float(t[-1] - t[0]) / STEPS, PER_PERIOD / band)
+            n = max(2, int((t <= t[0] + CHECK_STEPS * step).sum()))
             points = torch.cat([torch.arange(o, o + 3) for o in torch.tensor([0] + sizes[:-1]).cumsum(0).tolist()])
-            coarse = run([_pick(m, points) for m in batch], 2 * step, points)
+            check = lambda step: run([_pick(m, points) for m in batch], step, n, points)
+            whole = n == t.shape[0]  # the check spans the record: its fine runs are the free runs
+            fine = lambda step: run(batch, step, n) if whole else check(step)
+            at_points = lambda runs: {x: v[points] for x, v in runs.items()} if whole else runs
+            coarse, runs = check(2 * step), fine(step)
             for halving in range(HALVINGS + 1):
-                agree = converged(coarse, {x: v[points] for x, v in trajectory.items()}, scale)
+                agree = converged(coarse, at_points(runs), scale)
                 if agree or halving == HALVINGS:
                     break
-                coarse = {x: v[points] for x, v in trajectory.items()}
-                step /= 2
-                trajectory = run(batch, step)
+                coarse, step = at_points(runs), step / 2
+                runs = fine(step)
+            trajectory = runs if whole else None
+        if trajectory is None:
+            trajectory = run(batch, step, t.shape[0])
         for label in group:
             steps[label] = {"method": options.solver, "step": step, "converged": agree,
                             **({} if fixed else {"rtol": options.rtol, "atol": options.atol})}
