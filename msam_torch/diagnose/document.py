@@ -66,15 +66,17 @@ def _intervals(terms: list[dict]) -> list[str]:
         return []
     md = ["### Parameters of the adapted model", "", "90 % bootstrap intervals (time blocks and noise re-drawn).", "",
           "| term | coefficient | 90 % interval | exponent | 90 % interval |", "|---|---|---|---|---|"]
-    rows = []
+    rows, seen = [], {}
     for t in terms:
+        seen[t["term"]] = seen.get(t["term"], 0) + 1  # a component split into copies: each copy its row
+        name = f"`{_cell(t['term'])}`" + (f" (copy {seen[t['term']]})" if seen[t["term"]] > 1 else "")
         theta = "-" if t["theta_interval"] is None else interval_text(*t["theta_interval"], t["theta"])
         exponent, spread = "", ""
         if t["exponent"] is not None:
             exponent = f"{t['exponent']:.3f}"
             spread = "-" if t["exponent_interval"] is None else "{:.3f} to {:.3f}".format(*t["exponent_interval"])
-        rows.append(f"| `{_cell(t['term'])}` | {t['theta']:.4g} | {theta} | {exponent} | {spread} |")
-    return md + unique_rows(rows) + [""]
+        rows.append(f"| {name} | {t['theta']:.4g} | {theta} | {exponent} | {spread} |")
+    return md + rows + [""]
 
 
 def _where(where: dict) -> list[str]:
@@ -136,9 +138,9 @@ def _residual_checks(g, series: dict) -> list[str]:
     found = residuals(g.target, series, g.estimator)
     if found is None:
         return []
-    source, by_model, inputs = found
-    md = ["### Residual checks", "", f"The {source}: share of lags 1..L outside the 95 % band ±1.96/√N "
-          "(a white residual leaves about 5 % outside).", ""]
+    source, by_model, inputs, spacing = found
+    md = ["### Residual checks", "", f"The {source}, a sample every {spacing:.3g} time units: share of lags 1..L "
+          "outside the 95 % band ±1.96/√N (a white residual leaves about 5 % outside).", ""]
     names = sorted(inputs)
     md += ["| model | N | L | band | autocorrelation outside | " + " | ".join(f"correlation with {u} outside"
                                                                          for u in names) + " |",

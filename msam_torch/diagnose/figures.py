@@ -49,24 +49,27 @@ class Units:
         model, data = config.get("model", {}), config.get("data", {}) or {}
         self.quantities = model.get("quantities", {}) or {}
         self.columns = data.get("columns", {}) or {}
-        self.time = (f"time (column {data['time']})" if data.get("time") else "time (units of the record)")
+        self.time_source = f"column {data['time']}" if data.get("time") else "units of the record"
+        self.time = f"time ({self.time_source})"
 
     def unit(self, name: str) -> str | None:
+        own = (self.quantities.get(name) or {}).get("unit")
         base, order = split_derivative(name)
-        declared = (self.quantities.get(base) or {}).get("unit")
-        if declared is None:
-            return None
-        return declared if order == 0 else f"{declared} per time unit" + ("²" if order == 2 else "")
+        declared = (self.quantities.get(base) or {}).get("unit") if order else None
+        if own is not None or declared is None:
+            return own
+        return f"{declared} per time unit" + ("²" if order == 2 else "")
 
     def label(self, name: str) -> str:
-        base, order = split_derivative(name)
         unit = self.unit(name)
         if unit is not None:
             return f"{name} [{unit}]"
-        quantity = (self.quantities.get(base) or {}).get("quantity")
-        if quantity is not None:
-            rate = {0: "", 1: "rate of ", 2: "second derivative of "}[order]
-            return f"{name} ({rate}{quantity}, unit not declared)"
+        base, order = split_derivative(name)
+        if (self.quantities.get(name) or {}).get("quantity") is not None:
+            return f"{name} ({self.quantities[name]['quantity']}, unit not declared)"
+        if (self.quantities.get(base) or {}).get("quantity") is not None:
+            rate = {1: "rate of ", 2: "second derivative of "}[order]
+            return f"{name} ({rate}{self.quantities[base]['quantity']}, unit not declared)"
         if base in self.columns:
             return f"{name} ({'' if order == 0 else f'd{order}/dt{order} of '}column {self.columns[base]})"
         return f"{name} (no unit declared)"
@@ -161,7 +164,8 @@ def _where(target: str, where: dict, units: Units) -> list[Figure]:
 
 
 def residuals(target: str, series: dict, estimator: dict):
-    """``(source, residuals per model, inputs)`` for the whiteness checks, on the held-out (else
+    """``(source, residuals per model, inputs, spacing)`` for the whiteness checks (``spacing``: time
+    between the samples kept), on the held-out (else
     training) record: the free-run error of the equation's measured state (a measured signal,
     not an estimated derivative), else the first measured state's, else the one-step residual of
     the equation. Every ``stride``-th sample is kept: the weak form's decimation, for a one-step
@@ -177,7 +181,8 @@ def residuals(target: str, series: dict, estimator: dict):
         y, yhat = np.asarray(run["measured"][x].cpu()), np.asarray(run["simulated"][x].cpu())
         found = {m: (y - yhat[k])[::stride] for k, m in enumerate(MODELS) if m != "start" and np.isfinite(yhat[k]).all()}
         inputs = {u: np.asarray(v.cpu())[::stride] for u, v in run.get("inputs", {}).items()}
-        return (f"free-run error of {x} ({label.replace('_', '-')} record)", found, inputs) if found else None
+        source = f"free-run error of {x} ({label.replace('_', '-')} record)"
+        return (source, found, inputs, _spacing(run["t"], stride)) if found else None
     for label in ("held_out", "train"):
         step = series.get(f"one_step_{label}")
         if step is not None:
@@ -185,11 +190,17 @@ def residuals(target: str, series: dict, estimator: dict):
             y, yhat = np.asarray(step["y"].cpu()), np.asarray(step["yhat"].cpu())
             found = {m: (y - yhat[k])[::stride] for k, m in enumerate(MODELS) if m != "start"}
             inputs = {u: np.asarray(v.cpu())[::stride] for u, v in step.get("inputs", {}).items()}
-            return f"one-step residual of {target} ({label.replace('_', '-')} record)", found, inputs
+            source = f"one-step residual of {target} ({label.replace('_', '-')} record)"
+            return source, found, inputs, _spacing(step["t"], stride)
     return None
 
 
-def _correlation_figure(target: str, source: str, residuals: dict, inputs: dict, units: Units) -> Figure:
+def _spacing(t, stride: int) -> float:
+    return stride * float((t[-1] - t[0]) / max(t.shape[0] - 1, 1))
+
+
+def _correlation_figure(target: str, source: str, residuals: dict, inputs: dict, spacing: float,
+                        units: Units) -> Figure:
     import matplotlib.pyplot as plt
 
     found = {m: correlations(r, inputs) for m, r in residuals.items()}
@@ -197,13 +208,13 @@ def _correlation_figure(target: str, source: str, residuals: dict, inputs: dict,
     fig, axes = plt.subplots(1, 1 + len(names), figsize=(4.2 * (1 + len(names)), 3.2), squeeze=False)
     first = next(iter(found.values()))
     for m, c in found.items():
-        axes[0, 0].plot(np.arange(c["lags"] + 1), c["acf"], marker=".", lw=0.8, color=COLOURS[m], label=NAMES[m])
+        axes[0, 0].plot(spacing * np.arange(c["lags"] + 1), c["acf"], marker=".", lw=0.8, color=COLOURS[m], label=NAMES[m])
         for ax, u in zip(axes[0, 1:], names):
-            ax.plot(np.arange(-c["lags"], c["lags"] + 1), c["ccf"][u], marker=".", lw=0.8, color=COLOURS[m], label=NAMES[m])
+            ax.plot(spacing * np.arange(-c["lags"], c["lags"] + 1), c["ccf"][u], marker=".", lw=0.8, color=COLOURS[m], label=NAMES[m])
     for ax in axes[0]:
         ax.axhspan(-first["band"], first["band"], color="grey", alpha=0.25, label=f"±1.96/√N (N = {first['n']})")
         ax.axhline(0, color="black", lw=0.5)
-        ax.set_xlabel("lag (samples of the residual)")
+        ax.set_xlabel(f"lag (time, {units.time_source}; a sample every {spacing:.3g})")
     axes[0, 0].set_ylabel("autocorrelation (dimensionless)"), axes[0, 0].set_title("residual autocorrelation", fontsize=9)
     for ax, u in zip(axes[0, 1:], names):
         ax.set_ylabel(f"correlation with {u} (dimensionless)")
