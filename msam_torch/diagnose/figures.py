@@ -164,24 +164,22 @@ def _where(target: str, where: dict, units: Units) -> list[Figure]:
 
 
 def residuals(target: str, series: dict, estimator: dict):
-    """``(source, residuals per model, inputs, spacing)`` for the whiteness checks (``spacing``: time
-    between the samples kept), on the held-out (else
-    training) record: the free-run error of the equation's measured state (a measured signal,
-    not an estimated derivative), else the first measured state's, else the one-step residual of
-    the equation. Every ``stride``-th sample is kept: the weak form's decimation, for a one-step
-    residual at least the window of the target's derivative estimate (``estimator``: the
-    equation's), which correlates neighbouring rows."""
+    """``(source, residuals per model, inputs, spacing)`` for the whiteness checks on the held-out
+    (else training) record: the free-run error of the equation's state when it is measured (a
+    measured signal, not an estimated derivative), else the one-step residual of the equation.
+    Every ``stride``-th sample is kept (``spacing``: the time between them): the weak form's
+    decimation, for a one-step residual at least the window of the target's derivative estimate
+    (``estimator``: the equation's), which correlates neighbouring rows."""
     base, _ = split_derivative(target)
     stride = max(1, int(estimator.get("decimation", 1) or 1))
     for label in ("held_out", "train"):
         run = series.get(f"free_run_{label}")
-        if run is None or not run["measured"]:
+        if run is None or base not in run["measured"]:
             continue
-        x = base if base in run["measured"] else next(iter(run["measured"]))
-        y, yhat = np.asarray(run["measured"][x].cpu()), np.asarray(run["simulated"][x].cpu())
+        y, yhat = np.asarray(run["measured"][base].cpu()), np.asarray(run["simulated"][base].cpu())
         found = {m: (y - yhat[k])[::stride] for k, m in enumerate(MODELS) if m != "start" and np.isfinite(yhat[k]).all()}
         inputs = {u: np.asarray(v.cpu())[::stride] for u, v in run.get("inputs", {}).items()}
-        source = f"free-run error of {x} ({label.replace('_', '-')} record)"
+        source = f"free-run error of {base} ({label.replace('_', '-')} record)"
         return (source, found, inputs, _spacing(run["t"], stride)) if found else None
     for label in ("held_out", "train"):
         step = series.get(f"one_step_{label}")
