@@ -137,8 +137,10 @@ def test_an_interval_wider_than_its_value_says_so():
 def test_html_embeds_only_the_figures_it_is_given():
     from msam_torch.diagnose.figures import Figure
 
-    html = page("# T\n\n![a plot](a.png)\n\n| x | y |\n|---|---|\n| 1 | 2 |\n", [Figure("a.png", "a plot", b"\x89PNG")])
+    text = "# T\n\n![a plot](a.png)\n\n| x | y |\n|---|---|\n| 1 | `\\|x\\| > 1` |\n"
+    html = page(text, [Figure("a.png", "a plot", b"\x89PNG")])
     assert 'src="data:image/png;base64,iVBORw==' in html and "<td>1</td>" in html and "<title>" in html
+    assert "<td><code>|x| &gt; 1</code></td>" in html
 
 
 def test_tensorboard_holds_the_diagnosis_and_its_figures(tmp_path):

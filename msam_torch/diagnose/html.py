@@ -26,6 +26,7 @@ def page(text: str, figures: list[Figure], title: str = "Sim-to-real gap report"
     """``text`` (the report's Markdown) as an HTML page with ``figures`` (referenced in it by file
     name) embedded."""
     body = markdown_lib.markdown(text, extensions=["tables"], output_format="html")
+    body = body.replace("\\|", "|")  # a table cell's escaped separator stays escaped inside code
     for figure in figures:
         data = base64.b64encode(figure.png).decode("ascii")
         body = body.replace(f'src="{figure.name}"', f'src="data:image/png;base64,{data}"')
