@@ -175,3 +175,14 @@ def test_the_emps_report_renders_with_every_figure(tmp_path, capsys):
     for rows in tables(text):
         assert len(rows) == len(set(rows)), rows
     assert "report.html" in capsys.readouterr().out
+
+
+def test_msam_diagnose_writes_the_html_and_tensorboard_and_replaces_them_as_one_set(tmp_path, capsys):
+    out = tmp_path / "out"
+    for _ in range(2):  # the second run replaces the first set, event files included
+        assert main(["diagnose", str(CONFIGS / "msd_coulomb.yaml"), "--out", str(out), "-q", "--bootstrap", "2"]) == 0
+    assert len(list((out / "tensorboard").glob("events.out.tfevents.*"))) == 1
+    assert (out / "report.html").is_file() and f"{out / 'report.html'}" in capsys.readouterr().out
+    assert main(["diagnose", str(CONFIGS / "msd_coulomb.yaml"), "--out", str(tmp_path / "bare"), "-q",
+                 "--bootstrap", "2", "--no-tensorboard", "--no-plots"]) == 0
+    assert sorted(p.name for p in (tmp_path / "bare").iterdir()) == ["gap_report.json", "report.html", "report.md"]
