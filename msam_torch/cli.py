@@ -171,9 +171,9 @@ def _diagnose(args) -> int:
                       options=diagnose_options(args))
     out = Path(args.out)
     LOGGER.info("writing the report to %s", out)
-    path = report.save(out, plots=not args.no_plots)
+    path = report.save(out, plots=not args.no_plots, tensorboard=not args.no_tensorboard)
     print(report)
-    print(f"wrote {path} and {out / 'report.md'}")
+    print(f"wrote {path}, {out / 'report.md'} and {out / 'report.html'}")
     return 0
 
 
@@ -281,7 +281,8 @@ def _parse(argv) -> argparse.Namespace:
     for flag, field, keywords in DIAGNOSE_OPTIONS:
         diag.add_argument(flag, dest=field, **keywords)
     diag.add_argument("--no-free-run", action="store_true", help="do not simulate the models (no free-run measures)")
-    diag.add_argument("--no-plots", action="store_true", help="write gap_report.json and report.md without PNG plots")
+    diag.add_argument("--no-plots", action="store_true", help="write the report without its figures")
+    diag.add_argument("--no-tensorboard", action="store_true", help="do not write TensorBoard event files")
     diag.set_defaults(handler=_diagnose, out_default="{stem}_diagnosis")
     args, extra = parser.parse_known_args(argv)  # overrides may follow options
     unknown = [e for e in extra if e.startswith("-") or "=" not in e]

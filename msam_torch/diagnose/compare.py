@@ -67,7 +67,8 @@ def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, serie
         for model in models:
             yhat = model.rate({k: v.unsqueeze(0) for k, v in s.items()})[:3]  # (3, N)
             one_step[model.equation.target] = measures.by_model(measures.error_measures(s[model.equation.target], yhat))
-            series[model.equation.target][f"one_step_{label}"] = {"t": s["t"], "y": s[model.equation.target], "yhat": yhat}
+            series[model.equation.target][f"one_step_{label}"] = {"t": s["t"], "y": s[model.equation.target], "yhat": yhat,
+                                                                  "inputs": {u: s[u] for u in spec.inputs if u in s}}
         out["one_step"][label] = one_step
     if not options.free_run:
         return out
@@ -90,7 +91,8 @@ def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, serie
         out["free_run"][label] = entry
         for target in series:
             series[target][f"free_run_{label}"] = {"t": s["t"], "measured": {x: s[x] for x in measured},
-                                                   "simulated": {x: trajectory[x][:3] for x in measured}}
+                                                   "simulated": {x: trajectory[x][:3] for x in measured},
+                                                   "inputs": {u: s[u] for u in spec.inputs}}
     return out
 
 
