@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import scipy.signal
 import torch
 
 from ..errors import MSAMError
@@ -115,7 +116,12 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
         t = grids[group[0]]
         sizes = [batches[label][0].choice.shape[0] for label in group]
         batch = [_concat([batches[label][e] for label in group]) for e in range(len(batches[group[0]]))]
-        inputs = {u: torch.cat([sets[label].signals[u].expand(n, -1) for label, n in zip(group, sizes)])
+        step, agree, trajectory = options.solver_step, True, None
+        auto = fixed and step is None
+        if auto:
+            step = min(float(t[-1] - t[0]) / STEPS, PER_PERIOD / band)
+        seen = lambda u: anti_aliased(u, float(t[1] - t[0]), 2 * step if auto else step) if fixed else u
+        inputs = {u: torch.cat([seen(sets[label].signals[u]).expand(n, -1) for label, n in zip(group, sizes)])
                   for u in spec.inputs}
         initial = {x: torch.cat([sets[label].signals[x][0].expand(n) for label, n in zip(group, sizes)]) for x in spec.states}
         scale = {x: max(float(sets[label].signals[x].abs().max()) for label in group) for x in spec.states}
@@ -125,9 +131,7 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
             spec, models, t[:n], {u: (v if keep is None else v[keep])[..., :n] for u, v in inputs.items()},
             {x: v if keep is None else v[keep] for x, v in initial.items()}, method=options.solver, step=step,
             rtol=options.rtol, atol=atol, scale=scale)
-        step, agree, trajectory = options.solver_step, True, None
-        if fixed and step is None:  # the run at twice the step agrees, or the step is halved
-            step = min(float(t[-1] - t[0]) / STEPS, PER_PERIOD / band)
+        if auto:  # the run at twice the step agrees, or the step is halved
             n = max(2, int((t <= t[0] + CHECK_STEPS * step).sum()))
             points = torch.cat([torch.arange(o, o + 3) for o in torch.tensor([0] + sizes[:-1]).cumsum(0).tolist()])
             check = lambda step: run([_pick(m, points) for m in batch], step, n, points)
@@ -151,6 +155,17 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
         for k, label in enumerate(group):
             result[label] = {x: v[offsets[k]:offsets[k + 1]] for x, v in trajectory.items()}
     return result, steps
+
+
+def anti_aliased(signal: torch.Tensor, dt: float, step: float) -> torch.Tensor:
+    """An input as a fixed-step solver stepping over samples sees it: low-passed at the Nyquist
+    frequency of ``step`` (zero-phase Butterworth, order 4), so that runs at different steps read
+    the same input and differ only by their integration error; unchanged when ``step`` <= ``dt``."""
+    if step <= dt * (1 + 1e-9):
+        return signal
+    sos = scipy.signal.butter(4, 0.5 / step, fs=1 / dt, output="sos")
+    filtered = scipy.signal.sosfiltfilt(sos, signal.detach().cpu().double().numpy())
+    return torch.as_tensor(filtered.copy(), dtype=signal.dtype, device=signal.device)
 
 
 def converged(coarse: dict, fine: dict, scale: dict) -> bool:
