@@ -2,15 +2,18 @@
 quadratic-drag oscillator (0.5 % noise, defaults) ``adapt`` and ``diagnose`` both find
 ``x_dot|x_dot|^g`` with g near 1; the estimator gives the functional API's numbers; a diagnosis's
 models run in ``torchdiffeq.odeint``."""
+import json
 from functools import lru_cache
 
 import numpy as np
 import pandas as pd
 import pytest
 import torch
+import yaml
 from torchdiffeq import odeint
 
 from msam_torch import MSAM, adapt
+from msam_torch.cli import main
 from msam_torch.config import load_config
 from msam_torch.diagnose import DiagnoseOptions, diagnose
 from msam_torch.errors import ConfigError, MSAMError
@@ -61,6 +64,24 @@ def test_adapt_and_diagnose_agree_on_quadratic_drag_with_defaults():
     assert gap.effect == "quadratic drag" and gap.hypothesis.startswith("x_dot")
     assert gap.exponent == pytest.approx(1.0, abs=0.05)
     assert abs(equation.exponents[0] - gap.exponent) <= max(gap.naming["half_width"], 0.05)
+
+
+def test_msam_run_and_msam_diagnose_agree_on_the_same_csv(tmp_path):
+    """The commands read the config's data.file: the run gets the measured preset, and its
+    exponent lies within the diagnosis's bootstrap interval (or 0.05) of the diagnosis's."""
+    record().to_csv(tmp_path / "record.csv", index=False)
+    config = tmp_path / "drag.yaml"
+    config.write_text(yaml.safe_dump({"model": MODEL, "data": {**CONFIG["data"], "file": "record.csv"}}))
+    assert main(["run", str(config), "--out", str(tmp_path / "run"), "--no-tensorboard", "--quiet"]) == 0
+    assert main(["diagnose", str(config), "--out", str(tmp_path / "diag"), "--bootstrap", "8", "--no-free-run",
+                 "--no-plots", "--quiet"]) == 0
+    run = json.loads((tmp_path / "run" / "result.json").read_text())
+    (gap,) = json.loads((tmp_path / "diag" / "gap_report.json").read_text())["equations"]
+    (equation,) = run["equations"]
+    assert run["config"]["adaptation"]["preset"] == "measured"
+    assert equation["adjustments"][0] == "abs(x_dot)" and gap["effect"] == "quadratic drag"
+    assert equation["exponents"][0] == pytest.approx(1.0, abs=0.05) and gap["exponent"] == pytest.approx(1.0, abs=0.05)
+    assert abs(equation["exponents"][0] - gap["exponent"]) <= max(gap["naming"]["half_width"], 0.05)
 
 
 def test_the_paper_step_stays_available_by_name():
