@@ -33,6 +33,7 @@ from .data import DataArgument, Dataset, derivative_estimator
 from .derivatives import DerivativeEstimator
 from .errors import ConfigError
 from .evaluators import EVALUATORS, Evaluator
+from .progress import LOGGER
 from .spec import ModelSpec
 from .step import StepOptions
 from .trainer import Trainer
@@ -114,6 +115,8 @@ def with_preset(config: Config, measured: bool) -> Config:
     settings = {(section, key): value for (section, key), value in PRESETS[name].items() if key not in given[section]}
     if not settings:
         return config
+    LOGGER.debug("preset %r: %s (adaptation.preset=paper keeps the paper's step)", name,
+                ", ".join(f"{section}.{key}={value}" for (section, key), value in settings.items()))
     return updated(config, {**settings, ("adaptation", "preset"): name}, f"preset {name!r}")
 
 
