@@ -36,6 +36,9 @@ class MSAM:
     def __init__(self, model_config: Config | dict | str | Path, *, overrides: list[str] = (),
                  base_dir: str | Path | None = None, diagnose_options: DiagnoseOptions | dict | None = None,
                  **options):
+        if isinstance(model_config, Config) and overrides:
+            raise ConfigError("overrides", "apply overrides to a YAML path or a mapping, not to a Config "
+                                           "(or give the keys as options)")
         config = model_config if isinstance(model_config, Config) else load_config(model_config, overrides)
         self.config = with_options(config, **options)
         self.base_dir = Path(base_dir if base_dir is not None else

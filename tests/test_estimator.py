@@ -147,6 +147,8 @@ def test_bad_options_are_one_line_errors_naming_the_option():
         MSAM(CONFIG, refinement_steps=-1)
     with pytest.raises(ConfigError, match="^diagnose_options.bootstrapp: unknown option"):
         MSAM(CONFIG, diagnose_options={"bootstrapp": 3})
+    with pytest.raises(ConfigError, match="^overrides: apply overrides to a YAML path"):
+        MSAM(load_config(CONFIG), overrides=["adaptation.theta=fixed"])
     with pytest.raises(MSAMError, match="^MSAM: not fitted yet"):
         MSAM(CONFIG).model()
     with pytest.raises(MSAMError, match=r"^data: expected a 2-D tensor with the columns \['time', 'x', 'u'\]"):
