@@ -74,4 +74,5 @@ def diagnose(config: Config | dict | str | Path, data: DataArgument = None, vali
                  "nominal_parameters": parameters}
     return GapReport(verdict_kind=kind, verdict=verdict, equations=gaps, measures=gap_measures, data=data_info,
                      options=asdict(options), config=config.model_dump(mode="json"),
-                     seconds=time.perf_counter() - started, reasons=tuple(reasons), series=series)
+                     seconds=time.perf_counter() - started, reasons=tuple(reasons), series=series,
+                     models=tuple(e.model for e in equations))

@@ -13,6 +13,9 @@ import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import torch
+
+from ..model import StateModel
 from ..outputs import check_folder, one_set, write_atomic
 from ..result import _finite
 from ..tracking import TensorBoardTracker
@@ -93,6 +96,12 @@ class GapReport:
     seconds: float
     reasons: tuple = ()  # why the verdict is inconclusive, and what to try
     series: dict = field(default_factory=dict, repr=False, compare=False)  # arrays for the plots
+    models: tuple = field(default=(), repr=False, compare=False)  # per equation: start, retuned, adapted (Eq. 9)
+
+    def model(self, stage: str = "adapted", dtype=torch.float64):
+        """The equations of ``stage`` (``start``, ``retuned``, ``adapted``) as an ``nn.Module``
+        ``f(t, x)`` for ``torchdiffeq.odeint`` (:meth:`~msam_torch.model.StateModel.from_report`)."""
+        return StateModel.from_report(self, stage, dtype)
 
     def __str__(self) -> str:
         lines = [f"verdict: {self.verdict}"] + [f"  {r}" for r in self.reasons]
@@ -132,7 +141,7 @@ class GapReport:
 
     def to_dict(self) -> dict:
         out = {"version": SCHEMA_VERSION}
-        out.update({k: v for k, v in asdict(self).items() if k != "series"})
+        out.update({k: v for k, v in asdict(self).items() if k not in ("series", "models")})
         out["equations"] = [{**asdict(g), "verdict": g.verdict} for g in self.equations]
         return out
 
