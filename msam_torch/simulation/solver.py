@@ -41,26 +41,26 @@ def simulate(model: SystemModel, record: Record, p: Parameters, x0: torch.Tensor
     limit and the rate points outwards (``simulation.saturation``). ``span`` (S,): a row whose
     state leaves ``|x| < span`` is diverged, frozen and returned as NaN.
     """
-    rates = model.rhs(p, x0.dtype, x0.device)
-
-    def func(t, x, external):
-        values = {"t": t, **dict(zip(model.states, x.unbind(-1))), **dict(zip(model.external, external))}
-        rate = rates(values, x)
-        if limits is not None:
-            held = ((x >= limits[1]) & (rate > 0)) | ((x <= limits[0]) & (rate < 0))
-            rate = torch.where(held, torch.zeros_like(rate), rate)
-        if span is not None:
-            alive = (x.abs() < span).all(-1, keepdim=True) & torch.isfinite(rate).all(-1, keepdim=True)
-            rate = torch.where(alive, rate, torch.zeros_like(rate))
-        return rate
+    def guarded(rate):  # ``rate(time, x)`` (a time or a stage index) within the limits and span
+        def func(t, x):
+            rates = rate(t, x)
+            if limits is not None:
+                held = ((x >= limits[1]) & (rates > 0)) | ((x <= limits[0]) & (rates < 0))
+                rates = torch.where(held, 0.0, rates)
+            if span is not None:
+                alive = (x.abs() < span).all(-1, keepdim=True) & torch.isfinite(rates).all(-1, keepdim=True)
+                rates = torch.where(alive, rates, 0.0)
+            return rates
+        return func
 
     with _single_thread(x0.numel() < SERIAL_ELEMENTS and x0.device.type == "cpu"):
         if method in TABLEAUS:
-            states = _runge_kutta(func, record, x0, TABLEAUS[method], substeps, step)
+            states = _runge_kutta(model, p, record, x0, TABLEAUS[method], substeps, step, guarded)
         else:
-            at = lambda t: record.at(t.reshape(1)).squeeze(-2).unbind(-1)
+            rhs = model.rhs(p, x0.dtype, x0.device)
+            values = lambda t, x: model.values(t, x, record.at(t.reshape(1)).squeeze(-2))
             try:
-                states = odeint(lambda t, x: func(t, x, at(t)), x0, record.t, method=method, rtol=rtol,
+                states = odeint(guarded(lambda t, x: rhs(values(t, x), x)), x0, record.t, method=method, rtol=rtol,
                                 atol=atol).movedim(0, -2)
             except AssertionError:  # torchdiffeq's step-size underflow: integrate with fixed steps instead
                 return simulate(model, record, p, x0, "rk4", substeps, limits, span, step)
@@ -70,33 +70,34 @@ def simulate(model: SystemModel, record: Record, p: Parameters, x0: torch.Tensor
     return torch.where(diverged.view(-1, 1, 1), torch.full_like(states, torch.nan), states)
 
 
-def _runge_kutta(func, record: Record, x0: torch.Tensor, tableau, substeps: int, step: float | None) -> torch.Tensor:
+def _runge_kutta(model: SystemModel, p: Parameters, record: Record, x0: torch.Tensor, tableau, substeps: int,
+                 step: float | None, guarded) -> torch.Tensor:
     """The explicit Runge-Kutta loop on the grid ``t0 + i h`` (h = ``step`` or the sample period
     over ``substeps``), states at the record's times (interpolated linearly between grid points
-    that miss them): (B, N, S)."""
+    that miss them): (B, N, S). The external signals are interpolated at all stage times at once;
+    a stage costs the model's per-stage operations and one fused update."""
     offsets, stages, weights = tableau
     t = record.t
     h = (t[1] - t[0]) / substeps if step is None else torch.as_tensor(step, dtype=t.dtype, device=t.device)
     steps = int(torch.ceil((t[-1] - t[0]) / h - 1e-9))
     keys = torch.tensor([6 * i + offset for i in range(steps) for offset in offsets], device=t.device)
     stage_times = t[0] + keys.to(t.dtype) * (h / 6)  # in the loop's order
-    table = record.at(stage_times)
-    table = [c.unbind(-1) for c in table.expand(x0.shape[:-1] + table.shape[-2:]).unbind(-1)]  # per signal, per stage: (B,)
-    times = stage_times.unbind(0)
+    rate = model.stage_rates(p, stage_times, record.at(stage_times))
+    func = guarded(rate)
     coefficients = [[h * a for a in row] for row in stages]
-    weights = [h * b for b in weights]
-    x, grid, stage_index = x0, [x0], iter(range(len(times)))
+    weights = [(h * b, b) for b in weights]
+    x, grid, j = x0, [x0], 0
     for _ in range(steps):
         k = []
         for row in coefficients:
             stage = x
             for a, kj in zip(row, k):
-                stage = stage + kj * a
-            j = next(stage_index)
-            k.append(func(times[j], stage, [c[j] for c in table]))
-        for b, kj, c in zip(weights, k, tableau[2]):
-            if c:
-                x = x + kj * b
+                stage = torch.addcmul(stage, kj, a)
+            k.append(func(j, stage))
+            j += 1
+        for (b, nonzero), kj in zip(weights, k):
+            if nonzero:
+                x = torch.addcmul(x, kj, b)
         grid.append(x)
     grid = torch.stack(grid, -2)  # (B, steps + 1, S)
     position = ((t - t[0]) / h).detach()
