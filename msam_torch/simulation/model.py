@@ -176,7 +176,8 @@ class _Eq9:
 
     def __init__(self, model: SystemModel, p: Parameters, dtype, device, kinematic: bool):
         columns, states = model.columns, len(model.states)
-        self.p, self.signed = p, not all(f.is_magnitude for f in model.functions)
+        magnitudes = {f.is_magnitude for f in model.functions}
+        self.p, self.signed, self.mixed = p, False in magnitudes, len(magnitudes) > 1  # sign(1) = 1 for the constant
         self.function_column = torch.tensor(columns.functions, device=device)[p.choice]  # (B, Qa)
         self.inverse_scale = torch.gather(torch.nn.functional.pad(1.0 / p.scale, (0, 1), value=1.0), -1, p.choice)
         self.magnitude = torch.tensor([f.is_magnitude for f in model.functions] + [True], device=device)[p.choice]
@@ -207,9 +208,9 @@ class _Eq9:
         column, inverse_scale, magnitude, gamma, theta, one, theta_fixed = self.constants(shape)
         f = torch.gather(v, -1, column) * inverse_scale  # exact where the scale is 1 (normalize: none)
         factor = power(torch.log((f.abs() if self.signed else f).clamp_min(FLOOR)), gamma)  # f >= 0 for abs(...)
-        if self.signed:
-            factor = factor * torch.where(magnitude, 1.0, torch.sign(f))
-        weights = torch.cat([one, factor * theta, theta_fixed], -1)
+        if self.signed:  # |f|^gamma for abs(...), sign(f) |f|^gamma otherwise
+            factor = factor * (torch.where(magnitude, 1.0, torch.sign(f)) if self.mixed else torch.sign(f))
+        weights = factor * theta if one.shape[-1] + theta_fixed.shape[-1] == 0 else torch.cat([one, factor * theta, theta_fixed], -1)
         return (torch.index_select(v, -1, self.read) * weights) @ self.assign
 
 
