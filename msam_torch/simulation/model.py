@@ -135,7 +135,9 @@ class SystemModel:
         eq9 = _Eq9(self, p, dtype, t.device, kinematic=True)
         signals = self.values(t, t.new_zeros(t.shape + (0,)), external)
         one = _constant(torch.ones((), dtype=dtype, device=t.device), p.theta)
-        tabulated = _stack([x(signals) for x in columns.outer] + [one], (b, t.shape[0]), dtype).unbind(1)  # K x (B, O + 1)
+        shared = external.dim() == 2  # the same signals for every row: one (K, O + 1) table, read as expanded views
+        table = _stack([x(signals) for x in columns.outer] + [one], t.shape if shared else (b, t.shape[0]), dtype)
+        tabulated = [row.expand(b, -1) for row in table.unbind(0)] if shared else table.unbind(1)  # K x (B, O + 1)
         if not columns.inner:
             return lambda j, x: eq9(torch.cat([x, tabulated[j]], -1), x.shape[:-1])
         read = sorted(set().union(*(x.names for x in columns.inner)) - set(self.states))
@@ -172,46 +174,52 @@ class _Eq9:
     """Eq. 9 on a signal matrix v (*shape, K) laid out by :class:`Columns`, the constants of ``p``
     bound once per batch shape: ``sum_i theta_i M_i f_i^gamma_i + sum_j theta_j M_j`` per
     equation, or (``kinematic``) the rate of every simulated state (an equation's target, or the
-    state that holds its derivative)."""
+    state that holds its derivative). The operations and their order are those of the per-call
+    formulation (products per component, then sums per equation), so the results are the same
+    to the last bit however the signals were gathered."""
 
     def __init__(self, model: SystemModel, p: Parameters, dtype, device, kinematic: bool):
-        columns, states = model.columns, len(model.states)
+        columns = model.columns
         magnitudes = {f.is_magnitude for f in model.functions}
         self.p, self.signed, self.mixed = p, False in magnitudes, len(magnitudes) > 1  # sign(1) = 1 for the constant
         self.function_column = torch.tensor(columns.functions, device=device)[p.choice]  # (B, Qa)
         self.inverse_scale = torch.gather(torch.nn.functional.pad(1.0 / p.scale, (0, 1), value=1.0), -1, p.choice)
         self.magnitude = torch.tensor([f.is_magnitude for f in model.functions] + [True], device=device)[p.choice]
-        lead = [s for s, k in enumerate(model.source) if k < states] if kinematic else []  # kinematic states
-        equation = [e for e, _ in model.adjustable + model.fixed]  # of every component
-        self.read = torch.tensor([model.source[s] for s in lead] + list(columns.terms), dtype=torch.long, device=device)
-        self.assign = torch.zeros(len(lead) + len(equation), states if kinematic else len(model.equations), dtype=dtype,
-                                  device=device)  # read column -> rate
-        for r, s in enumerate(lead):
-            self.assign[r, s] = 1.0
-        for r, e in enumerate(equation, len(lead)):
-            for s in [s for s, k in enumerate(model.source) if k == states + e] if kinematic else [e]:
-                self.assign[r, s] = 1.0
-        self.lead = len(lead)
+        q = len(model.adjustable)
+        self.terms = torch.tensor(columns.terms[:q], dtype=torch.long, device=device)
+        self.fixed_terms = torch.tensor(columns.terms[q:], dtype=torch.long, device=device)
+
+        def assign(components):  # component -> equation
+            matrix = torch.zeros(len(components), len(model.equations), dtype=dtype, device=device)
+            for k, (e, _) in enumerate(components):
+                matrix[k, e] = 1.0
+            return matrix
+
+        self.assign_adjustable, self.assign_fixed = assign(model.adjustable), assign(model.fixed)
+        self.source = torch.tensor(model.source, device=device) if kinematic else None  # from cat(states, equations)
         self.bound: dict = {}
 
     def constants(self, shape):
         if shape not in self.bound:
             p = self.p
             rows = (lambda v: v) if len(shape) == 1 else (lambda v: v.view(v.shape[:1] + (1,) * (len(shape) - 1) + v.shape[1:]))
-            one = _constant(torch.ones(shape + (self.lead,), dtype=p.theta.dtype, device=p.theta.device), p.theta)
             self.bound[shape] = (rows(self.function_column).expand(shape + self.function_column.shape[-1:]),
-                                 rows(self.inverse_scale), rows(self.magnitude), rows(p.gamma), rows(p.theta), one,
-                                 rows(p.theta_fixed).expand(shape + p.theta_fixed.shape[-1:]))
+                                 rows(self.inverse_scale), rows(self.magnitude), rows(p.gamma), rows(p.theta),
+                                 rows(p.theta_fixed))
         return self.bound[shape]
 
     def __call__(self, v: torch.Tensor, shape) -> torch.Tensor:
-        column, inverse_scale, magnitude, gamma, theta, one, theta_fixed = self.constants(shape)
+        column, inverse_scale, magnitude, gamma, theta, theta_fixed = self.constants(shape)
         f = torch.gather(v, -1, column) * inverse_scale  # exact where the scale is 1 (normalize: none)
         factor = power(torch.log((f.abs() if self.signed else f).clamp_min(FLOOR)), gamma)  # f >= 0 for abs(...)
         if self.signed:  # |f|^gamma for abs(...), sign(f) |f|^gamma otherwise
             factor = factor * (torch.where(magnitude, 1.0, torch.sign(f)) if self.mixed else torch.sign(f))
-        weights = factor * theta if one.shape[-1] + theta_fixed.shape[-1] == 0 else torch.cat([one, factor * theta, theta_fixed], -1)
-        return (torch.index_select(v, -1, self.read) * weights) @ self.assign
+        out = (torch.index_select(v, -1, self.terms) * factor * theta) @ self.assign_adjustable
+        if self.fixed_terms.shape[0]:
+            out = out + (torch.index_select(v, -1, self.fixed_terms) * theta_fixed) @ self.assign_fixed
+        if self.source is None:
+            return out
+        return torch.index_select(torch.cat([v[..., : self.source.shape[0]], out], -1), -1, self.source)
 
 
 def _constant(value: torch.Tensor, like: torch.Tensor) -> torch.Tensor:

@@ -75,7 +75,7 @@ def _runge_kutta(model: SystemModel, p: Parameters, record: Record, x0: torch.Te
     """The explicit Runge-Kutta loop on the grid ``t0 + i h`` (h = ``step`` or the sample period
     over ``substeps``), states at the record's times (interpolated linearly between grid points
     that miss them): (B, N, S). The external signals are interpolated at all stage times at once;
-    a stage costs the model's per-stage operations and one fused update."""
+    a stage costs the model's per-stage operations."""
     offsets, stages, weights = tableau
     t = record.t
     h = (t[1] - t[0]) / substeps if step is None else torch.as_tensor(step, dtype=t.dtype, device=t.device)
@@ -92,12 +92,12 @@ def _runge_kutta(model: SystemModel, p: Parameters, record: Record, x0: torch.Te
         for row in coefficients:
             stage = x
             for a, kj in zip(row, k):
-                stage = torch.addcmul(stage, kj, a)
+                stage = stage + kj * a
             k.append(func(j, stage))
             j += 1
         for (b, nonzero), kj in zip(weights, k):
             if nonzero:
-                x = torch.addcmul(x, kj, b)
+                x = x + kj * b
         grid.append(x)
     grid = torch.stack(grid, -2)  # (B, steps + 1, S)
     position = ((t - t[0]) / h).detach()
