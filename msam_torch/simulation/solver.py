@@ -2,15 +2,16 @@
 
 Fixed-step methods (``euler``, ``midpoint``, ``rk4``: torchdiffeq's tableaus, ``rk4`` its 3/8
 rule) run as an explicit Runge-Kutta loop whose step coefficients are tensors derived from the
-record's time axis, and the external signals are looked up in a table interpolated once at the
-stage times (sixths of a step). So forward-mode differentiation (:mod:`.sensitivities`) passes
-through with every operation between dual tensors: torchdiffeq's fixed-grid steps multiply by
-Python numbers, an operation forward mode runs on a slow path (the number's zero tangent is
-handled in Python), which made differentiating through torchdiffeq's ``rk4`` 15 to 30 times the
-cost of the simulation. Adaptive methods (``dopri5``, ...) are torchdiffeq's, and fall back to
-``rk4`` when their step underflows. Small batches run on one CPU thread. A trajectory that leaves
-``span`` is frozen there and returned as NaN, so one diverging member neither crashes nor stalls
-the batch.
+record's time axis; the external signals are interpolated once at all stage times (sixths of a
+step), and every expression of the model that reads no simulated state is tabulated there once
+(:meth:`~.model.SystemModel.stage_rates`), so a stage evaluates only what depends on the states.
+Forward-mode differentiation (:mod:`.sensitivities`) passes through with every operation between
+dual tensors: torchdiffeq's fixed-grid steps multiply by Python numbers, an operation forward mode
+runs on a slow path (about 0.7 ms against 10 us between dual tensors), which made differentiating
+through torchdiffeq's ``rk4`` 15 to 30 times the cost of the simulation. Adaptive methods
+(``dopri5``, ...) are torchdiffeq's, and fall back to ``rk4`` when their step underflows. Small
+batches run on one CPU thread. A trajectory that leaves ``span`` is frozen there and returned as
+NaN, so one diverging member neither crashes nor stalls the batch.
 """
 from __future__ import annotations
 
