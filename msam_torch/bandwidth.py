@@ -25,8 +25,10 @@ TAPS_PER_FACTOR = 20  # anti-alias FIR length per unit of the decimation factor 
 
 def band_edge(y: np.ndarray) -> float:
     """Frequency (cycles per sample) below which :data:`POWER_SHARE` of the power of ``y`` above
-    its white-noise floor lies (detrended, Hann-tapered, band-averaged periodogram)."""
-    n = y.size
+    its white-noise floor lies (detrended, Hann-tapered, band-averaged periodogram; scaled to unit
+    peak first, so that no magnitude overflows)."""
+    n, peak = y.size, np.abs(y).max()
+    y = y / peak if 0 < peak < np.inf else y
     index = np.arange(n)
     detrended = y - np.polyval(np.polyfit(index, y, 1), index)
     taper = np.hanning(n)
