@@ -11,11 +11,11 @@ with the force evaluated exactly. Each record gets its own white noise of ``--no
 displacement's standard deviation. The starting model lacks the effect; only ``x`` and ``u`` are
 measured (columns ``t, x, u``), so the diagnosis estimates the derivatives.
 
-Each ``msam diagnose`` runs as a child process (one torch thread); its peak resident memory is
-the child's own (``os.wait4``), and the load average is printed beside the time because the
-machine may be shared.
+Each ``msam diagnose`` (and, with ``--adapt``, ``msam run`` on the large record) runs as a child
+process (one torch thread); its peak resident memory is the child's own (``os.wait4``), and the
+load average is printed beside the time because the machine may be shared.
 
-    PYTHONPATH=. python experiments/big_csv.py [--rows 3500000] [--small 35000] [--seconds 350]
+    PYTHONPATH=. python experiments/big_csv.py [--rows 3500000] [--small 35000] [--seconds 350] [--adapt]
 """
 from __future__ import annotations
 
@@ -23,6 +23,7 @@ import argparse
 import dataclasses
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -40,6 +41,7 @@ from msam_torch.systems import SYSTEMS, WITHHELD, measure
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
 LIMIT_SECONDS, LIMIT_BYTES = 300.0, 4 * 2**30
+PROGRESS = re.compile(r"\(\d+ s(, about \d+ s left)?\)$")
 
 
 def records(case: str, seconds: float, small: int, rows: int, noise: float, seed: int) -> dict[int, pd.DataFrame]:
@@ -60,29 +62,49 @@ def records(case: str, seconds: float, small: int, rows: int, noise: float, seed
     return out
 
 
-def diagnose(folder: Path, frame: pd.DataFrame, case: str, name: str) -> dict:
-    """Write the record and its config to ``folder``, run ``msam diagnose``; time, peak memory, verdict."""
+def progress(lines: list[str]) -> int:
+    """Progress lines on stderr: 'stage k/n what (elapsed s[, about r s left])'."""
+    return sum(bool(PROGRESS.search(line)) for line in lines)
+
+
+def timed(command: list[str], log: Path) -> dict:
+    """Run ``msam <command>`` as a child process; its exit status, wall and CPU time, peak resident
+    memory (the child's own) and the load average before and after."""
+    load = os.getloadavg()
+    with open(log, "w") as handle:
+        started = time.perf_counter()
+        child = subprocess.Popen([sys.executable, "-m", "msam_torch", *command], env=ENV, stdout=handle,
+                                 stderr=subprocess.STDOUT)
+        _, status, usage = os.wait4(child.pid, 0)
+        wall = time.perf_counter() - started
+    return {"status": os.waitstatus_to_exitcode(status), "seconds": wall, "cpu": usage.ru_utime + usage.ru_stime,
+            "peak_bytes": usage.ru_maxrss * 1024,
+            "load": (load[0], os.getloadavg()[0]), "log": log.read_text()}
+
+
+def measure_record(folder: Path, frame: pd.DataFrame, case: str, name: str, adapt: bool) -> dict:
+    """Write the record and its config to ``folder``, run ``msam diagnose`` (and ``msam run`` when
+    ``adapt``); time, peak memory, verdict (and adapted equation)."""
     frame.to_csv(folder / f"{name}.csv", index=False)
     config = {"model": WITHHELD[case].model,
               "data": {"file": f"{name}.csv", "time": "t", "columns": {"x": "x", "u": "u"}}}
     (folder / f"{name}.yaml").write_text(yaml.safe_dump(config))
     out = folder / f"{name}_diagnosis"
-    command = [sys.executable, "-m", "msam_torch", "diagnose", str(folder / f"{name}.yaml"), "--out", str(out),
-               "--threads", "1"]
-    load = os.getloadavg()
-    with open(folder / f"{name}.log", "w") as log:
-        started = time.perf_counter()
-        child = subprocess.Popen(command, env=ENV, stdout=log, stderr=subprocess.STDOUT)
-        _, status, usage = os.wait4(child.pid, 0)
-        wall = time.perf_counter() - started
-    child.returncode = os.waitstatus_to_exitcode(status)
-    log_text = (folder / f"{name}.log").read_text()
-    report = json.loads((out / "gap_report.json").read_text()) if child.returncode == 0 else {}
-    estimator = report["equations"][0]["estimator"] if report else {}
-    return {"rows": len(frame), "megabytes": (folder / f"{name}.csv").stat().st_size / 1e6, "status": child.returncode,
-            "seconds": wall, "peak_bytes": usage.ru_maxrss * 1024, "load": (load, os.getloadavg()),
-            "verdict": report.get("verdict", log_text.strip().splitlines()[-1] if log_text.strip() else "?"),
-            "decimation": estimator.get("decimation"), "progress_lines": log_text.count("diagnose:")}
+    run = timed(["diagnose", str(folder / f"{name}.yaml"), "--out", str(out), "--threads", "1"], folder / f"{name}.log")
+    report = json.loads((out / "gap_report.json").read_text()) if run["status"] == 0 else {}
+    lines = run.pop("log").strip().splitlines() or ["?"]
+    runs = {"diagnose": {**run, "verdict": report.get("verdict", lines[-1]),
+                         "decimation": (report.get("data", {}).get("train", {}).get("decimated", {}).get("factor", 1),
+                                        report["equations"][0]["estimator"]["decimation"] if report else None),
+                         "progress_lines": progress(lines)}}
+    if adapt:
+        run = timed(["run", str(folder / f"{name}.yaml"), "--out", str(folder / f"{name}_run"), "--no-tensorboard"],
+                    folder / f"{name}_run.log")
+        lines = run.pop("log").strip().splitlines() or ["?"]
+        adapted = [line.split(":", 1)[1].strip() for line in lines if line.startswith("adapted:")]
+        runs["run"] = {**run, "verdict": adapted[0] if adapted else lines[-1], "decimation": None,
+                       "progress_lines": progress(lines)}
+    return {"rows": len(frame), "megabytes": (folder / f"{name}.csv").stat().st_size / 1e6, **runs}
 
 
 def main() -> None:
@@ -93,6 +115,7 @@ def main() -> None:
     parser.add_argument("--case", default="msd_quadratic_drag", choices=sorted(WITHHELD))
     parser.add_argument("--noise", type=float, default=0.01, help="noise, a share of the displacement's std")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--adapt", action="store_true", help="also time msam run on the large record")
     parser.add_argument("--keep", help="folder for the records and reports (default: a temporary one, removed)")
     args = parser.parse_args()
     made = time.perf_counter()
@@ -102,20 +125,23 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="msam-big-csv-") as scratch:
         folder = Path(args.keep or scratch)
         folder.mkdir(parents=True, exist_ok=True)
-        runs = {label: diagnose(folder, frames.pop(n), args.case, label)
-                for label, n in (("small", args.small), ("large", args.rows))}
-    print("record | rows | CSV MB | exit | wall s | peak RSS GB | load avg before, after (1 min) | decimation | "
-          "progress lines | verdict")
-    for label, r in runs.items():
-        print(f"{label} | {r['rows']} | {r['megabytes']:.0f} | {r['status']} | {r['seconds']:.1f} | "
-              f"{r['peak_bytes'] / 2**30:.2f} | {r['load'][0][0]:.1f}, {r['load'][1][0]:.1f} | {r['decimation']} | "
-              f"{r['progress_lines']} | {r['verdict']}")
-    large = runs["large"]
+        results = {label: measure_record(folder, frames.pop(n), args.case, label, args.adapt and label == "large")
+                    for label, n in (("small", args.small), ("large", args.rows))}
+    print("record | rows | CSV MB | command | exit | wall s | CPU s | peak RSS GB | load avg before, after (1 min) | "
+          "decimation (record, weak form) | progress lines | verdict or adapted equation")
+    for label, r in results.items():
+        for command in ("diagnose", "run"):
+            if command in r:
+                c = r[command]
+                print(f"{label} | {r['rows']} | {r['megabytes']:.0f} | {command} | {c['status']} | {c['seconds']:.1f} | "
+                      f"{c['cpu']:.1f} | {c['peak_bytes'] / 2**30:.2f} | {c['load'][0]:.1f}, {c['load'][1]:.1f} | {c['decimation']} | "
+                      f"{c['progress_lines']} | {c['verdict']}")
+    large, small = results["large"]["diagnose"], results["small"]["diagnose"]
     checks = {f"wall time {large['seconds']:.0f} s < {LIMIT_SECONDS:.0f} s": large["seconds"] < LIMIT_SECONDS,
               f"peak memory {large['peak_bytes'] / 2**30:.2f} GB < {LIMIT_BYTES / 2**30:.0f} GB":
                   large["peak_bytes"] < LIMIT_BYTES,
-              "both exit 0": large["status"] == runs["small"]["status"] == 0,
-              "same verdict as the small record": large["verdict"] == runs["small"]["verdict"]}
+              "both diagnoses exit 0": large["status"] == small["status"] == 0,
+              "same verdict as the small record": large["verdict"] == small["verdict"]}
     for what, ok in checks.items():
         print(f"{'PASS' if ok else 'FAIL'}: {what}")
     sys.exit(0 if all(checks.values()) else 1)

@@ -266,7 +266,8 @@ def measured_dataset(frame: pd.DataFrame, config: DataConfig, spec: ModelSpec, s
         raise DataError(f"after decimation by {info['decimated']['factor']}: {error}") from None
 
 
-def decimate_oversampled(t: np.ndarray, measured: dict, info: dict, every: int | None = None) -> tuple[np.ndarray, dict, dict]:
+def decimate_oversampled(t: np.ndarray, measured: dict, info: dict,
+                         every: int | None = None) -> tuple[np.ndarray, dict, dict]:
     """A record on a uniform grid sampled far faster than its band, low-pass filtered and
     decimated by ``every`` (default: :func:`~msam_torch.bandwidth.oversampling`'s factor) before
     anything else reads it; ``info['decimated']`` records how. Irregular grids stay as they are."""
