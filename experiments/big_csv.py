@@ -134,8 +134,8 @@ def main() -> None:
             if command in r:
                 c = r[command]
                 print(f"{label} | {r['rows']} | {r['megabytes']:.0f} | {command} | {c['status']} | {c['seconds']:.1f} | "
-                      f"{c['cpu']:.1f} | {c['peak_bytes'] / 2**30:.2f} | {c['load'][0]:.1f}, {c['load'][1]:.1f} | {c['decimation']} | "
-                      f"{c['progress_lines']} | {c['verdict']}")
+                      f"{c['cpu']:.1f} | {c['peak_bytes'] / 2**30:.2f} | {c['load'][0]:.1f}, {c['load'][1]:.1f} | "
+                      f"{c['decimation']} | {c['progress_lines']} | {c['verdict']}")
     large, small = results["large"]["diagnose"], results["small"]["diagnose"]
     checks = {f"wall time {large['seconds']:.0f} s < {LIMIT_SECONDS:.0f} s": large["seconds"] < LIMIT_SECONDS,
               f"peak memory {large['peak_bytes'] / 2**30:.2f} GB < {LIMIT_BYTES / 2**30:.0f} GB":
