@@ -1,6 +1,6 @@
 """The corpus of user errors (issue 18): every input a careless user or an attacker can give ends
-in one line naming the place and exit status 2 (3 for a run that learnt nothing, its result
-written), never a traceback, and leaves nothing half-written behind.
+in one line naming the place and exit status 2 (3 for a run or diagnosis that learnt nothing, its
+result or report written), never a traceback, and leaves nothing half-written behind.
 
 Each case builds its inputs in a fresh folder and runs ``msam`` in-process and asserts its exit
 status; ``pytest -s -k outcome_table`` prints the table of cases by class and exit status.
