@@ -2,8 +2,8 @@
 ``msam diagnose CONFIG [--data FILE] [--validate FILE] [--out DIR] [key=value ...]``.
 
 Errors in the user's input print one line naming the place (key, file, column, row, option) and
-exit with status 2, without a traceback; a run that learnt nothing exits with 3 (its result
-written and saying so); a bug prints one line and where its traceback is, and exits with 1;
+exit with status 2, without a traceback; a run or diagnosis that learnt nothing exits with 3
+(its result or report written and saying so); a bug prints one line and where its traceback is, and exits with 1;
 Ctrl-C exits with 130. The output folder is checked and locked before the run; a failed run
 leaves nothing behind, and a diagnosis replaces its files as one set.
 """
@@ -160,6 +160,21 @@ def _require_information(result, path: Path) -> None:
                                     f"record is not finite; {path} records it")
 
 
+def _require_diagnosis(report, path: Path) -> None:
+    """A diagnosis none of whose hypotheses (candidates, when judged by simulation) converged, or
+    whose re-fitted and adapted models have no finite held-out measure, learnt nothing: no verdict
+    is printed; ``path`` (written) records it."""
+    import math
+
+    for gap in report.equations:
+        if all(c.get("diverged", False) for c in gap.ranking):
+            raise NoInformation(f"{gap.target}: every hypothesis of the diagnosis diverged or has a non-finite "
+                                f"held-out RMSE; {path} records it")
+        if not all(math.isfinite(gap.improvement[k]) for k in ("retuned_rmse", "adapted_rmse")):
+            raise NoInformation(f"{gap.target}: the held-out RMSE of the theta re-fitted or adapted model is not "
+                                f"finite; {path} records it")
+
+
 def _diagnose(args) -> int:
     from .diagnose import diagnose
 
@@ -172,6 +187,7 @@ def _diagnose(args) -> int:
     out = Path(args.out)
     LOGGER.info("writing the report to %s", out)
     path = report.save(out, plots=not args.no_plots, tensorboard=not args.no_tensorboard)
+    _require_diagnosis(report, path)
     print(report)
     print(f"wrote {path}, {out / 'report.md'} and {out / 'report.html'}")
     return 0
@@ -198,7 +214,7 @@ DIAGNOSE_OPTIONS = (  # (flag, DiagnoseOptions field, argparse keywords); defaul
     ("--solver", "solver", {"help": "torchdiffeq method of the free runs: rk4, midpoint, euler (fixed step) or "
                             "dopri5, bosh3, ... (adaptive); default rk4"}),
     ("--solver-step", "solver_step", {"type": _positive(float), "help": "fixed-step solvers: step in time units "
-                                      "(default: halved from 1/500 of the record until runs at two steps agree)"}),
+                                      "(default: 1/25 of the band's period, halved until runs at two steps agree)"}),
     ("--rtol", "rtol", {"type": _positive(float), "help": "adaptive solvers: relative tolerance (default 1e-6)"}),
     ("--atol", "atol", {"type": _positive(float), "help": "adaptive solvers: absolute tolerance relative to each "
                         "state's measured magnitude (default 1e-8)"}),
@@ -217,7 +233,7 @@ def diagnose_options(args):
 
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv``, run the command, and turn every way it can end into an exit status: 0 done;
-    2 bad input (one line naming the place); 3 a run that learnt nothing (its result records it);
+    2 bad input (one line naming the place); 3 a run or diagnosis that learnt nothing (its files record it);
     1 a bug (one line and where its traceback is); 130 interrupted. A closed stdout ends quietly."""
     try:
         args = _parse(argv)

@@ -11,10 +11,11 @@ import pandas as pd
 import pytest
 import torch
 
+from msam_torch.bandwidth import band_edge
 from msam_torch.cli import main
 from msam_torch.derivatives import BAND
 from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
-from msam_torch.diagnose.estimation import HALF_AMPLITUDE, band_edge
+from msam_torch.diagnose.estimation import HALF_AMPLITUDE
 from msam_torch.diagnose.verdict import equation_verdict, free_run_reasons
 from msam_torch.systems import WITHHELD
 
