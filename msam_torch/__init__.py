@@ -20,6 +20,7 @@ _HOME = {  # public name -> the submodule that defines it
     "DataError": "errors",
     "MSAMError": "errors",
     "ModelSpec": "spec",
+    "MSAM": "estimator",
     "StepOptions": "step",
     "Trainer": "trainer",
 }
@@ -31,6 +32,7 @@ if TYPE_CHECKING:  # the same names for type checkers and the API docs
     from .candidates import Candidate, EquationData
     from .config import Config, load_config
     from .errors import ConfigError, DataError, MSAMError
+    from .estimator import MSAM
     from .spec import ModelSpec
     from .step import StepOptions
     from .trainer import Trainer

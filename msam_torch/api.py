@@ -10,7 +10,7 @@ import torch
 from .candidates import EquationData, equation_choices
 from .config import Config, load_config
 from .data import DataArgument, resolve_datasets
-from .plan import Plan, make_trainer, prepare
+from .plan import Plan, make_trainer, prepare, records_measured
 from .result import EquationResult, RunResult, format_component, format_equation
 from .simulation.adapt import adapt_simulation
 from .spec import Equation, ModelSpec
@@ -45,7 +45,7 @@ def adapt(config: Config | dict | str, overrides: list[str] = (),
         base_dir = Path(config).parent if isinstance(config, (str, Path)) else Path(".")
     if not isinstance(config, Config):
         config = load_config(config, overrides)
-    plan = prepare(config, in_memory=data is not None, **strategies)
+    plan = prepare(config, in_memory=data is not None, measured=records_measured(config, data), **strategies)
     config, spec, dtype, device = plan.config, plan.spec, plan.dtype, plan.device
     if not isinstance(plan.evaluator, Algebraic):  # judged by simulation
         return adapt_simulation(plan, nominal_parameters(config, spec), Path(base_dir), trainer_factory or make_trainer,

@@ -2,8 +2,8 @@
 ``msam diagnose CONFIG [--data FILE] [--validate FILE] [--out DIR] [key=value ...]``.
 
 Errors in the user's input print one line naming the place (key, file, column, row, option) and
-exit with status 2, without a traceback; a run that learnt nothing exits with 3 (its result
-written and saying so); a bug prints one line and where its traceback is, and exits with 1;
+exit with status 2, without a traceback; a run or diagnosis that learnt nothing exits with 3
+(its result or report written and saying so); a bug prints one line and where its traceback is, and exits with 1;
 Ctrl-C exits with 130. The output folder is checked and locked before the run; a failed run
 leaves nothing behind, and a diagnosis replaces its files as one set.
 """
@@ -160,6 +160,21 @@ def _require_information(result, path: Path) -> None:
                                     f"record is not finite; {path} records it")
 
 
+def _require_diagnosis(report, path: Path) -> None:
+    """A diagnosis none of whose hypotheses (candidates, when judged by simulation) converged, or
+    whose re-fitted and adapted models have no finite held-out measure, learnt nothing: no verdict
+    is printed; ``path`` (written) records it."""
+    import math
+
+    for gap in report.equations:
+        if all(c.get("diverged", False) for c in gap.ranking):
+            raise NoInformation(f"{gap.target}: every hypothesis of the diagnosis diverged or has a non-finite "
+                                f"held-out RMSE; {path} records it")
+        if not all(math.isfinite(gap.improvement[k]) for k in ("retuned_rmse", "adapted_rmse")):
+            raise NoInformation(f"{gap.target}: the held-out RMSE of the theta re-fitted or adapted model is not "
+                                f"finite; {path} records it")
+
+
 def _diagnose(args) -> int:
     from .diagnose import diagnose
 
@@ -171,9 +186,10 @@ def _diagnose(args) -> int:
                       options=diagnose_options(args))
     out = Path(args.out)
     LOGGER.info("writing the report to %s", out)
-    path = report.save(out, plots=not args.no_plots)
+    path = report.save(out, plots=not args.no_plots, tensorboard=not args.no_tensorboard)
+    _require_diagnosis(report, path)
     print(report)
-    print(f"wrote {path} and {out / 'report.md'}")
+    print(f"wrote {path}, {out / 'report.md'} and {out / 'report.html'}")
     return 0
 
 
@@ -198,12 +214,12 @@ DIAGNOSE_OPTIONS = (  # (flag, DiagnoseOptions field, argparse keywords); defaul
     ("--solver", "solver", {"help": "torchdiffeq method of the free runs: rk4, midpoint, euler (fixed step) or "
                             "dopri5, bosh3, ... (adaptive); default rk4"}),
     ("--solver-step", "solver_step", {"type": _positive(float), "help": "fixed-step solvers: step in time units "
-                                      "(default: halved from 1/500 of the record until runs at two steps agree)"}),
+                                      "(default: 1/25 of the band's period, halved until runs at two steps agree)"}),
     ("--rtol", "rtol", {"type": _positive(float), "help": "adaptive solvers: relative tolerance (default 1e-6)"}),
     ("--atol", "atol", {"type": _positive(float), "help": "adaptive solvers: absolute tolerance relative to each "
                         "state's measured magnitude (default 1e-8)"}),
     ("--max-effects", "max_effects", {"type": _positive(int), "help": "effects added in turn, at most: after an "
-                                      "accepted effect the rest of the gap is diagnosed again (default 3; 1: one)"}),
+                                      "accepted effect the rest of the gap is diagnosed again (default 1: no loop)"}),
     ("--quadrature-samples", "quadrature_samples", {"type": _positive(int), "help": "records are low-pass filtered and "
                                                     "decimated to about this many samples (default 1000)"}),
 )
@@ -219,7 +235,7 @@ def diagnose_options(args):
 
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv``, run the command, and turn every way it can end into an exit status: 0 done;
-    2 bad input (one line naming the place); 3 a run that learnt nothing (its result records it);
+    2 bad input (one line naming the place); 3 a run or diagnosis that learnt nothing (its files record it);
     1 a bug (one line and where its traceback is); 130 interrupted. A closed stdout ends quietly."""
     try:
         args = _parse(argv)
@@ -239,9 +255,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except BrokenPipeError:  # stdout closed early (| head): the files are written; say nothing more
+    except BrokenPipeError:  # stdout closed early (| head): the files are written, the printout is not
         _silence_stdout()
-        return 0
+        print("error: standard output was closed before the printout ended (broken pipe); "
+              "the files are written", file=sys.stderr)
+        return MSAMError.exit_status
     except Exception as exc:
         return _internal_error(exc, args.verbose)
 
@@ -281,7 +299,8 @@ def _parse(argv) -> argparse.Namespace:
     for flag, field, keywords in DIAGNOSE_OPTIONS:
         diag.add_argument(flag, dest=field, **keywords)
     diag.add_argument("--no-free-run", action="store_true", help="do not simulate the models (no free-run measures)")
-    diag.add_argument("--no-plots", action="store_true", help="write gap_report.json and report.md without PNG plots")
+    diag.add_argument("--no-plots", action="store_true", help="write the report without its figures")
+    diag.add_argument("--no-tensorboard", action="store_true", help="do not write TensorBoard event files")
     diag.set_defaults(handler=_diagnose, out_default="{stem}_diagnosis")
     args, extra = parser.parse_known_args(argv)  # overrides may follow options
     unknown = [e for e in extra if e.startswith("-") or "=" not in e]

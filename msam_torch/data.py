@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 import torch
 
+from .bandwidth import RESOLVED, decimate, oversampling
 from .config import DataConfig, RangeConfig
 from .derivatives import ESTIMATORS, Auto, DerivativeEstimator, Exact, configured, noise_level, takes
 from .errors import ConfigError, DataError
@@ -78,14 +79,14 @@ def load_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str = ".
                      else read_frame(base_dir / config.file, base_dir))
     train = measured_dataset(select_range(table, config.train, config, source, "data.train"),
                              config, spec, f"{source} (data.train)", dtype, estimator)
-    validation = None
+    validation, every = None, train.info.get("decimated", {}).get("factor", 1)  # held out at the training rate
     if validation_frame is not None or config.validation_file is not None:
         held, held_source = (as_frame(validation_frame, "validation frame") if validation_frame is not None
                              else read_frame(base_dir / config.validation_file, base_dir))
-        validation = measured_dataset(held, config, spec, held_source, dtype, estimator)
+        validation = measured_dataset(held, config, spec, held_source, dtype, estimator, every)
     elif config.validation is not None:
         part = select_range(table, config.validation, config, source, "data.validation")
-        validation = measured_dataset(part, config, spec, f"{source} (data.validation)", dtype, estimator)
+        validation = measured_dataset(part, config, spec, f"{source} (data.validation)", dtype, estimator, every)
     return train, validation
 
 
@@ -239,9 +240,10 @@ def select_range(frame: pd.DataFrame, rng: RangeConfig, config: DataConfig, sour
 
 
 def measured_dataset(frame: pd.DataFrame, config: DataConfig, spec: ModelSpec, source: str, dtype,
-                     estimator: DerivativeEstimator | None = None) -> Dataset:
-    """Signals of ``spec`` from a table: time checks, column mapping, resampling, estimation
-    (``estimator``: default :func:`derivative_estimator` of ``config``)."""
+                     estimator: DerivativeEstimator | None = None, every: int | None = None) -> Dataset:
+    """Signals of ``spec`` from a table: time checks, column mapping, resampling, decimation of
+    an oversampled record by ``every`` (default: chosen from its band, :func:`decimate_oversampled`),
+    estimation (``estimator``: default :func:`derivative_estimator` of ``config``)."""
     estimator = derivative_estimator(config, True) if estimator is None else estimator
     if len(frame) < 2:
         raise DataError(f"{source}: {len(frame)} sample{'s' if len(frame) != 1 else ''}; need at least 2")
@@ -255,8 +257,34 @@ def measured_dataset(frame: pd.DataFrame, config: DataConfig, spec: ModelSpec, s
         measured[signal] = column(frame, name, source, f"data.columns.{signal}")
     info = {"source": source}
     estimated = not isinstance(estimator, Exact)
-    t, measured, info = check_time(frame, t, measured, source, config, estimated, info)
-    return build_dataset(t, measured, config, spec, info, dtype, source, estimator)
+    t, measured, info = decimate_oversampled(*check_time(frame, t, measured, source, config, estimated, info), every)
+    try:
+        return build_dataset(t, measured, config, spec, info, dtype, source, estimator)
+    except DataError as error:
+        if "decimated" not in info:
+            raise
+        raise DataError(f"after decimation by {info['decimated']['factor']}: {error}") from None
+
+
+def decimate_oversampled(t: np.ndarray, measured: dict, info: dict,
+                         every: int | None = None) -> tuple[np.ndarray, dict, dict]:
+    """A record on a uniform grid sampled far faster than its band, low-pass filtered and
+    decimated by ``every`` (default: :func:`~msam_torch.bandwidth.oversampling`'s factor) before
+    anything else reads it; ``info['decimated']`` records how. Irregular grids stay as they are."""
+    dt = info["sample_time"]
+    if t.size < 3 or np.abs(np.diff(t) - dt).max() > REGULAR * dt:
+        return t, measured, info
+    band = None
+    if every is None:
+        every, band = oversampling(measured)
+    if every == 1:
+        return t, measured, info
+    kept = t[::every]
+    rule = (f"at least {RESOLVED} samples per period of the band edge {band / dt:.4g} cycles per time unit"
+            if band is not None else "the training record's")
+    return kept, {k: decimate(v, every) for k, v in measured.items()}, {
+        **info, "sample_time": dt * every,
+        "decimated": {"from": int(t.size), "to": int(kept.size), "factor": every, "rule": rule}}
 
 
 def check_time(frame: pd.DataFrame, t: np.ndarray, measured: dict, source: str, config: DataConfig,

@@ -10,7 +10,7 @@ function per component is a buffer, so ``state_dict()`` holds the whole model.
 from __future__ import annotations
 
 import ast
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import nn
@@ -55,6 +55,34 @@ def result_stage(spec: ModelSpec, equations: list, data: dict, stage: str) -> St
     return Stage(tuple(e.adjustments for e in equations), tuple(e.exponents for e in equations), tuple(theta))
 
 
+REPORT_STAGES = ("start", "retuned", "adapted")  # the rows of a diagnosis's models (diagnose.compare.models)
+
+
+def report_stage(models: list, stage: str) -> Stage:
+    """``stage`` (``start``, ``retuned``, ``adapted``) of a diagnosis from its equations'
+    extended-form :class:`~msam_torch.simulation.EquationModel` (one row per stage): per
+    component of the extended equation the adjustment, exponent and theta in the data's units."""
+    if stage not in REPORT_STAGES:
+        raise ConfigError("stage", f"unknown stage {stage!r} of a diagnosis (choose from {', '.join(REPORT_STAGES)})")
+    row = REPORT_STAGES.index(stage)
+    adjustments, exponents, thetas = [], [], []
+    for model in models:
+        eq = model.equation
+        adjustment, exponent, theta = [None] * len(eq.components), [None] * len(eq.components), [0.0] * len(eq.components)
+        for k, i in enumerate(eq.adjustable):
+            choice, gamma = int(model.choice[row, k]), float(model.gamma[row, k])
+            theta[i] = float(model.theta[row, k])
+            if choice >= 0:  # theta of |f / scale|^gamma in the units of |f|^gamma
+                adjustment[i], exponent[i] = eq.adjustments[choice].text, gamma
+                theta[i] *= float(model.scale[choice]) ** -gamma
+        for k, i in enumerate(eq.fixed):
+            theta[i] = float(model.theta_fixed[row, k])
+        adjustments.append(adjustment)
+        exponents.append(exponent)
+        thetas.append(theta)
+    return Stage(tuple(adjustments), tuple(exponents), tuple(thetas))
+
+
 class StateModel(nn.Module):
     """``f(t, x) -> dx/dt`` of the simulated states (``states``) for ``torchdiffeq.odeint``.
 
@@ -89,6 +117,20 @@ class StateModel(nn.Module):
         limits = state_limits(config, build_model(spec, spec.equations).states, dtype)
         return cls(spec, result_stage(spec, result.equations, result.data, stage), dtype, sim.input_hold, limits,
                    sim.method, sim.substeps)
+
+    @classmethod
+    def from_report(cls, report, stage: str = "adapted", dtype=torch.float64) -> "StateModel":
+        """The model of ``stage`` of a :class:`~msam_torch.diagnose.GapReport`: its equations
+        extended by the fitted effect term (the diagnosis's models, Eq. 9)."""
+        if not report.models:
+            raise ConfigError("stage", "this report holds no fitted models (a report read back from JSON, "
+                                       "or a diagnosis by simulation): diagnose again to get them")
+        config = load_config(report.config)
+        sim = config.adaptation.simulation
+        extended = tuple(m.equation for m in report.models)
+        spec = replace(ModelSpec.from_config(config.model), equations=extended)
+        limits = state_limits(config, build_model(spec, extended).states, dtype)
+        return cls(spec, report_stage(report.models, stage), dtype, sim.input_hold, limits, sim.method, sim.substeps)
 
     @property
     def states(self) -> tuple[str, ...]:

@@ -10,22 +10,40 @@ protocol and ``diagnose`` run from; nothing downstream reads those config keys a
 From Python, a strategy object serves as well as its name, in the config (``{"data":
 {"derivatives": SavitzkyGolay(window=15)}}``) or as a keyword of :func:`prepare` and
 :func:`msam_torch.api.adapt` (``adapt(config, data=frame, derivatives=SavitzkyGolay(window=15))``).
+
+Measured data get safe settings (``adaptation.preset``, :data:`PRESETS`): where ``adapt`` reads
+a file or a table rather than a simulation (:func:`records_measured`), the keys the config does
+not give are filled from the ``measured`` preset: derivatives through a zero-phase Butterworth
+filter at the noise floor (maximally flat in the band, where a noise-floor Savitzky-Golay window
+attenuates the twice-differentiated target of Eq. 6 by some 10 %), every adjustment function
+normalised by its RMS (units, design.md 2.7) and theta re-solved at every step (variable
+projection, Eq. 17-18), so the result does not hinge on the nominal theta. ``preset: paper`` keeps
+the literal step. The diagnosis integrates the target by parts (weak form) and chooses its own
+band-limited estimation (:mod:`msam_torch.diagnose.estimation`); it is prepared without a preset.
 """
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass
 
 import torch
 
 from .config import Config, validate
-from .data import derivative_estimator
+from .data import DataArgument, Dataset, derivative_estimator
 from .derivatives import DerivativeEstimator
+from .errors import ConfigError
 from .evaluators import EVALUATORS, Evaluator
+from .progress import LOGGER
 from .spec import ModelSpec
 from .step import StepOptions
 from .trainer import Trainer
 
 SECTIONS = {"derivatives": "data", "evaluation": "adaptation", "step_size": "adaptation", "theta": "adaptation"}
+PRESETS = {  # preset -> {(section, key): value} for the keys a config does not give
+    "paper": {},
+    "measured": {("data", "derivatives"): "butterworth", ("adaptation", "normalize"): "rms",
+                 ("adaptation", "theta"): "varpro"},
+}
 
 
 @dataclass(frozen=True)
@@ -43,16 +61,63 @@ class Plan:
     device: torch.device
 
 
+def updated(config: Config, settings: dict, origin: str) -> Config:
+    """``config`` with ``settings`` ``{(section, key): value}`` (``data`` and ``adaptation`` keys,
+    objects kept), validated as a config is; keys it does not give stay unset, for the preset."""
+    raw = {"model": config.model}
+    for section in ("data", "adaptation"):
+        given = getattr(config, section)
+        raw[section] = {key: getattr(given, key) for key in given.model_fields_set}
+    for (section, key), value in settings.items():
+        raw[section][key] = value
+    return validate(Config, raw, origin)
+
+
 def with_strategies(config: Config, **strategies) -> Config:
     """``config`` with the strategy options given by keyword (``derivatives``, ``evaluation``,
     ``step_size``, ``theta``), each a name or a strategy object, validated as a config is."""
     unknown = sorted(set(strategies) - set(SECTIONS))
     if unknown:
         raise TypeError(f"unknown strategy option {', '.join(unknown)} (known: {', '.join(SECTIONS)})")
-    raw = {section: dict(getattr(config, section)) for section in type(config).model_fields}  # objects kept
-    for key, value in strategies.items():
-        raw[SECTIONS[key]][key] = value
-    return validate(Config, raw, "strategy arguments")
+    return updated(config, {(SECTIONS[key], key): value for key, value in strategies.items()}, "strategy arguments")
+
+
+def with_options(config: Config, **options) -> Config:
+    """``config`` with keys of its ``data`` and ``adaptation`` sections given by name (``theta="varpro"``,
+    ``refinement_steps=300``, ``preset="paper"``); an unknown name is a :class:`ConfigError` naming it."""
+    sections = {key: section for section in ("data", "adaptation") for key in type(getattr(config, section)).model_fields}
+    for key in options:
+        if key not in sections:
+            close = difflib.get_close_matches(key, list(sections), n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise ConfigError(key, f"unknown option (the options are the keys of the config's data and adaptation "
+                                   f"sections){hint}")
+    return updated(config, {(sections[key], key): value for key, value in options.items()}, "options")
+
+
+def records_measured(config: Config, data: DataArgument = None) -> bool:
+    """Whether the training record is measured: a file or table (``data`` or ``data.file``), or a
+    :class:`~msam_torch.data.Dataset` holding measured signals; not a simulated system."""
+    if isinstance(data, Dataset):
+        return bool(data.measured)
+    return data is not None or config.data.file is not None
+
+
+def with_preset(config: Config, measured: bool) -> Config:
+    """``config`` with the keys it does not give filled from its ``adaptation.preset``
+    (``auto``: ``measured`` for measured records, else ``paper``)."""
+    name = config.adaptation.preset
+    if name == "auto":
+        name = "measured" if measured else "paper"
+    if name not in PRESETS:
+        raise ConfigError("adaptation.preset", f"unknown preset {name!r} (choose from auto, {', '.join(PRESETS)})")
+    given = {"data": config.data.model_fields_set, "adaptation": config.adaptation.model_fields_set}
+    settings = {(section, key): value for (section, key), value in PRESETS[name].items() if key not in given[section]}
+    if not settings:
+        return config
+    LOGGER.debug("preset %r: %s (adaptation.preset=paper keeps the paper's step)", name,
+                ", ".join(f"{section}.{key}={value}" for (section, key), value in settings.items()))
+    return updated(config, {**settings, ("adaptation", "preset"): name}, f"preset {name!r}")
 
 
 def step_options(config: Config) -> StepOptions:
@@ -63,9 +128,11 @@ def step_options(config: Config) -> StepOptions:
                        damping=a.damping, gamma_limit=a.gamma_limit)
 
 
-def prepare(config: Config, in_memory: bool = False, **strategies) -> Plan:
-    """The :class:`Plan` of ``config`` (with ``strategies`` as in :func:`with_strategies`);
-    ``in_memory``: the measurements come from a table given in memory (``auto`` then estimates)."""
+def prepare(config: Config, in_memory: bool = False, measured: bool = False, **strategies) -> Plan:
+    """The :class:`Plan` of ``config`` (its preset applied for ``measured`` records, see
+    :func:`records_measured`; then ``strategies`` as in :func:`with_strategies`); ``in_memory``: the
+    measurements come from a table given in memory (``auto`` then estimates)."""
+    config = with_preset(config, measured)
     if strategies:
         config = with_strategies(config, **strategies)
     a = config.adaptation

@@ -9,9 +9,13 @@ refinement). A custom-scalars layout overlays the candidates of each measure in 
 :meth:`TensorBoardTracker.log_run` writes the config's options as hparams with the final
 measures of every equation (Eq. 19) as metrics. Only trial 0 is logged; with more than
 ``max_candidates`` candidates only the best ``max_candidates`` by current fitness are.
+:meth:`TensorBoardTracker.log_diagnosis` logs a gap report (``msam diagnose``): its summary, its
+numbers and its figures as images.
 """
 from __future__ import annotations
 
+import io
+import math
 import re
 from pathlib import Path
 
@@ -100,6 +104,29 @@ class TensorBoardTracker:
             self.writer.file_writer.add_summary(summary)
         for tag, value in metrics.items():
             self.writer.add_scalar(tag, value)
+
+    def log_diagnosis(self, report, figures=()) -> None:
+        """A gap report: its summary as text (``diagnosis/summary``); per equation the fitted
+        ``exponent``, the held-out ``improvement`` and the bootstrap ``win_frequency``
+        (``diagnosis/<target>/...``); per record the free-run NRMSE of each model
+        (``diagnosis/free_run_nrmse/<record>/<model>``); the report's figures
+        (:class:`~msam_torch.diagnose.figures.Figure`) as images (``diagnosis/<figure>``)."""
+        from matplotlib.image import imread
+
+        self.writer.add_text("diagnosis/summary", "\n".join("    " + line for line in str(report).splitlines()))
+        for g in report.equations:
+            values = {"exponent": g.exponent, "improvement": g.improvement.get("relative"),
+                      "win_frequency": g.confidence.get("win_frequency")}
+            for measure, value in values.items():
+                if value is not None and math.isfinite(value):
+                    self.writer.add_scalar(f"diagnosis/{tag_name(g.target)}/{measure}", value)
+        for record, entry in report.measures.get("free_run", {}).items():
+            for model, value in entry["nrmse"].items():
+                if value is not None:
+                    self.writer.add_scalar(f"diagnosis/free_run_nrmse/{record}/{model}", value)
+        for figure in figures:
+            image = imread(io.BytesIO(figure.png), format="png")[..., :3]  # RGBA floats in [0, 1]
+            self.writer.add_image(f"diagnosis/{tag_name(figure.name.removesuffix('.png'))}", image, dataformats="HWC")
 
     def layout(self) -> dict:
         """Custom-scalars layout: per equation, one chart per stage and measure overlaying every candidate."""

@@ -67,10 +67,10 @@ def test_naive_emps_diagnosis_runs_on_a_slice():
     assert gap.confidence["margin"] > 0.02
 
 
-def test_naive_silverbox_run_keeps_the_nominal_theta_by_default():
-    """The default estimator keeps theta at the user's guesses (theta: fixed), so msam run on the
+def test_naive_silverbox_run_keeps_the_nominal_theta_under_the_paper_preset():
+    """The paper's step keeps theta at the user's guesses (theta: fixed), so msam run on the
     naive config adapts exponents around -10 y_dot - 1e5 y + u."""
-    result = adapt(CONFIGS / "silverbox_naive.yaml", ["data.train.by=index", "data.train.stop=4000",
+    result = adapt(CONFIGS / "silverbox_naive.yaml", ["data.train.by=index", "data.train.stop=4000", "adaptation.preset=paper",
                                                       "adaptation.round_robin_steps=2", "adaptation.refinement_steps=2"])
     (equation,) = result.equations
     assert equation.theta == pytest.approx([-10.0, -1.0e5, 1.0])

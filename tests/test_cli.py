@@ -67,3 +67,21 @@ def test_expression_outside_the_whitelist_is_rejected_with_its_key(tmp_path, cap
     assert main(["run", str(config), "--out", str(tmp_path / "out")]) == 2
     assert "model.equations[0].components[1].theta" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_closed_stdout_is_one_line_and_status_2_with_the_files_complete(tmp_path):
+    """`msam run ... | head` closing the pipe first: no traceback, one line naming the broken pipe,
+    the files kept (the same for diagnose: tests/test_faults.py)."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "out"
+    process = subprocess.Popen([sys.executable, "-m", "msam_torch", "run", str(CONFIGS / "harmonic.yaml"),
+                                "--out", str(out), "--quiet", *QUICK], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    process.stdout.close()  # the reader is gone before anything is printed
+    stderr = process.stderr.read()
+    assert process.wait() == 2
+    assert stderr.strip().splitlines() == [
+        "error: standard output was closed before the printout ended (broken pipe); the files are written"]
+    assert json.loads((out / "result.json").read_text())["equations"]

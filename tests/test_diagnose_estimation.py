@@ -1,6 +1,7 @@
 """Estimation chosen from the record, verdicts that check themselves, the diagnose options on the
 command line (docs/design.md section 3b)."""
 import json
+import math
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -8,11 +9,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 
+from msam_torch.bandwidth import band_edge
 from msam_torch.cli import main
 from msam_torch.derivatives import BAND
 from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
-from msam_torch.diagnose.estimation import HALF_AMPLITUDE, band_edge
+from msam_torch.diagnose.estimation import HALF_AMPLITUDE
 from msam_torch.diagnose.verdict import equation_verdict, free_run_reasons
 from msam_torch.systems import WITHHELD
 
@@ -114,3 +117,17 @@ def test_cli_takes_the_diagnose_options(tmp_path, capsys):
     assert "--half-width" in capsys.readouterr().err
     assert main(["diagnose", str(tmp_path / "c.yaml"), "--out", str(tmp_path / "o2"), "--solver", "nope"]) == 2
     assert "solver" in capsys.readouterr().err
+
+
+def test_inputs_are_anti_aliased_at_the_nyquist_frequency_of_a_step_over_samples():
+    """A fixed step longer than the sample period reads the input low-passed at its Nyquist
+    frequency: a tone well below it passes within 1 %, one well above it is removed to 1 %."""
+    from msam_torch.diagnose.compare import anti_aliased
+
+    dt, step = 1e-3, 1e-2  # the step's Nyquist frequency: 50 per time unit
+    t = torch.arange(20000, dtype=torch.float64) * dt
+    low, high = torch.sin(2 * math.pi * 5 * t), torch.sin(2 * math.pi * 200 * t)
+    seen = anti_aliased(low + high, dt, step)
+    inner = slice(1000, -1000)
+    assert float((seen - low)[inner].abs().max()) < 0.01
+    assert torch.equal(anti_aliased(low + high, dt, dt), low + high)

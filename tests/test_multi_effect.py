@@ -38,7 +38,7 @@ WITHHELD = {  # name -> (catalogue names, force the starting model lacks)
     "none": (set(), lambda x, v: 0.0 * x),
 }
 TOTAL_EXPONENT = {"Coulomb friction": 0.0, "hardening cubic stiffness": 3.0, "quadratic drag": 2.0}  # on the effect's signal
-OPTIONS = DiagnoseOptions(bootstrap=8, steps=20)
+OPTIONS = DiagnoseOptions(bootstrap=8, steps=20, max_effects=3)  # the loop is opt-in
 
 
 def _rhs(force):

@@ -51,3 +51,23 @@ def test_exact_sensitivities_match_central_differences(tmp_path):
             / torch.linalg.vector_norm(s, dim=-1).sum(-1, keepdim=True)
         assert float(dm.min()) > 1e-3
         torch.testing.assert_close(jac.dm, dm, rtol=1e-5, atol=0)
+
+
+def test_sensitivities_without_dm_are_the_same_rows(tmp_path):
+    """Without dM (a step in exponent units) the shifted exponents are simulated once each: the
+    change of Eq. 16 and the free columns are those of the full pass, dM is NaN; with no free
+    column the base row is still simulated."""
+    data = tanks(tmp_path, "midpoint")
+    choice = torch.tensor([[[0, 0, 1], [1, 0, 0]]])
+    gamma = torch.tensor([[[-0.3, -0.4, -0.2], [0.5, 0.1, 0.0]]], dtype=torch.float64)
+    z = torch.tensor([[[-0.08, 0.08, -0.07, 0.05, 2.0, 3.0]]], dtype=torch.float64).expand(1, 2, 6)
+    free = torch.tensor([False] * 4 + [True, True])
+    full = jacobians(data, choice, gamma, z, 1e-2, free)
+    lean = jacobians(data, choice, gamma, z, 1e-2, free, dm=False)
+    torch.testing.assert_close(lean.change, full.change, rtol=1e-13, atol=1e-15)
+    torch.testing.assert_close(lean.z[..., free], full.z[..., free], rtol=1e-13, atol=1e-15)
+    torch.testing.assert_close(lean.base, full.base, rtol=0, atol=0)
+    assert bool(torch.isnan(lean.dm).all()) and bool(torch.isfinite(full.dm).all())
+    none = jacobians(data, choice, gamma, z, 1e-2, torch.zeros(6, dtype=torch.bool), dm=False)
+    torch.testing.assert_close(none.base, full.base, rtol=0, atol=0)
+    torch.testing.assert_close(none.change, full.change, rtol=1e-13, atol=1e-15)

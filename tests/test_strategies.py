@@ -130,12 +130,12 @@ def test_condition_numbers_are_an_explicit_switch_that_leaves_the_fit_unchanged(
 
 def test_simulation_evaluation_runs_with_the_default_auto_estimator(tmp_path):
     """Simulation-based evaluation estimates the unmeasured x_dot(0) from x under ``derivatives:
-    auto`` (the default) exactly as under ``savgol``."""
+    auto`` (the default of the paper preset) exactly as under ``savgol``."""
     config, frame = measured_case("harmonic", every=10)
     frame[["t", "x", "u"]].to_csv(tmp_path / "record.csv", index=False)
     config["data"] = {"file": "record.csv", "time": "t", "columns": {"x": "x", "u": "u"}}
     quick = ["adaptation.evaluation=simulation", "adaptation.simulation.output=[x]", "adaptation.simulation.prefit_steps=0",
-             "adaptation.round_robin_steps=1", "adaptation.refinement_steps=0"]
+             "adaptation.round_robin_steps=1", "adaptation.refinement_steps=0", "adaptation.preset=paper"]
     auto = adapt(config, quick, base_dir=tmp_path)
     assert auto.config["data"]["derivatives"] == "auto"
     assert outcome(auto) == outcome(adapt(config, quick + ["data.derivatives=savgol"], base_dir=tmp_path))

@@ -42,15 +42,15 @@ def test_selection_and_exponents_do_not_depend_on_units(tmp_path, name):
 
 def test_normalisation_alone_is_invariant_with_theta_fixed(tmp_path):
     """Every column the step sees is dimensionless, so even the literal step is invariant."""
-    reference = run(tmp_path, "vanderpol", 1.0, 1.0, ["adaptation.normalize=rms"])
-    converted = run(tmp_path, "vanderpol", 1e3, 1e-3, ["adaptation.normalize=rms"])
+    reference = run(tmp_path, "vanderpol", 1.0, 1.0, ["adaptation.normalize=rms", "adaptation.theta=fixed"])
+    converted = run(tmp_path, "vanderpol", 1e3, 1e-3, ["adaptation.normalize=rms", "adaptation.theta=fixed"])
     assert converted.adjustments == reference.adjustments
     assert max(abs(a - b) for a, b in zip(converted.exponents, reference.exponents)) < 1e-6
 
 
 def test_without_normalisation_units_change_the_result(tmp_path):
     """The reason for the option: |f|^gamma is not unit-invariant (docs/design.md 2.7)."""
-    reference = run(tmp_path, "harmonic", 1.0, 1.0, [])
-    converted = run(tmp_path, "harmonic", 1e3, 1.0, [])
+    reference = run(tmp_path, "harmonic", 1.0, 1.0, ["adaptation.normalize=none"])
+    converted = run(tmp_path, "harmonic", 1e3, 1.0, ["adaptation.normalize=none"])
     assert (converted.adjustments != reference.adjustments
             or max(abs(a - b) for a, b in zip(converted.exponents[:2], reference.exponents[:2])) > 1e-3)

@@ -1,6 +1,6 @@
 """The corpus of user errors (issue 18): every input a careless user or an attacker can give ends
-in one line naming the place and exit status 2 (3 for a run that learnt nothing, its result
-written), never a traceback, and leaves nothing half-written behind.
+in one line naming the place and exit status 2 (3 for a run or diagnosis that learnt nothing, its
+result or report written), never a traceback, and leaves nothing half-written behind.
 
 Each case builds its inputs in a fresh folder and runs ``msam`` in-process and asserts its exit
 status; ``pytest -s -k outcome_table`` prints the table of cases by class and exit status.
@@ -133,22 +133,38 @@ def diverging(start):
     return build
 
 
-def tanks_scaled(factor):
-    """The cascaded tanks (simulation evaluation) on the first 120 samples of their record times ``factor``."""
+def tanks(change=None, rows: int = 120, edit=None):
+    """The cascaded tanks (evaluated by simulation) on the first ``rows`` samples of their record;
+    ``change(record)`` edits the table, ``edit(config)`` the config."""
     def build(tmp_path):
         import pandas as pd
 
         record = pd.read_csv(CONFIGS.parent / "msam_torch" / "datasets" / "cascaded_tanks" / "estimation.csv",
-                             comment="#").iloc[:120]
-        record[["u_V", "y_V"]] *= factor
+                             comment="#").iloc[:rows]
+        if change is not None:
+            change(record)
         record.to_csv(tmp_path / "tanks.csv", index=False)
         raw = yaml.safe_load((CONFIGS / "cascaded_tanks.yaml").read_text())
         raw["data"].update(file="tanks.csv")
         raw["data"].pop("validation_file")
         raw["adaptation"]["simulation"]["prefit_steps"] = 1
+        if edit is not None:
+            edit(raw)
         (tmp_path / "config.yaml").write_text(yaml.safe_dump(raw))
         return tmp_path / "config.yaml"
     return build
+
+
+def tank_starts(start):
+    def edit(raw):
+        for equation in raw["model"]["equations"]:
+            for c in equation["components"]:
+                c["start"] = start
+    return edit
+
+
+def tank_input_adjustment(raw):
+    raw["model"]["equations"][0]["adjustments"].append("abs(u)")
 
 
 ROOT_CANNOT_BE_REFUSED = pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
@@ -333,6 +349,17 @@ CORPUS: dict[str, dict[str, tuple]] = {
         "missing validation file": (frame(validation_file="held.csv"), [], 2, ["held.csv", "no such data file"]),
         "neither system nor file": (lambda p: bundled(p, lambda r: r["data"].pop("system")), [], 2, ["data", "exactly one"]),
     },
+    "records simulated against": {  # the measured outputs take the targets' part (adaptation.evaluation: simulation)
+        "record times 1e200": (tanks(column_set("y_V", lambda f: f["y_V"] * 1e200)), [], 2,
+                               ["tanks.csv", "'x2'", "rescale the data"]),
+        "constant output": (tanks(column_set("y_V", 3.0)), [], 2, ["measured output 'x2'", "constant up to rounding"]),
+        "output constant to rounding": (tanks(column_set("y_V", lambda f: 3.0 + np.arange(len(f)) * 1e-16)), [], 2,
+                                        ["measured output 'x2'", "constant up to rounding"]),
+        "five samples": (tanks(rows=5), [], 2, ["5 samples", "model.equations[0, 1]", "at least"]),
+        "input adjustment of constant magnitude": (tanks(column_set("u_V", 4.0), edit=tank_input_adjustment), [], 2,
+                                                   ["'abs(u)'", "model.equations[0].adjustments[1]", "constant magnitude"]),
+        "constant output, diagnose": (tanks(column_set("y_V", 3.0)), [], 2, ["measured output 'x2'"], "diagnose"),
+    },
     "diagnose": {
         "five samples": (frame(rows=5), [], 2, ["5 samples", "at least 7"], "diagnose"),
         "data scaled by 1e-300": (frame(scaled(1e-300)), [], 2, ["rescale the data"], "diagnose"),
@@ -354,8 +381,8 @@ CORPUS: dict[str, dict[str, tuple]] = {
         "every candidate diverged (starts 300)": (diverging(300), [], 3, ["every one of the 4 candidates diverged",
                                                                           "result.json"]),
         "every candidate diverged (starts 1e6)": (diverging(1e6), [], 3, ["candidates diverged"]),
-        "simulated free run not finite (record times 1e200)": (tanks_scaled(1e200), [], 3,
-                                                                ["free run of the adapted x2", "not finite"]),
+        "every hypothesis diverged, diagnosed by simulation (starts 300)": (tanks(edit=tank_starts(300)), [], 3, [
+            "x1_dot: every hypothesis of the diagnosis diverged", "gap_report.json"], "diagnose"),
     },
 }
 if not CUDA:
@@ -391,12 +418,16 @@ def test_user_error(tmp_path, capsys, kind, name):
     if status == 2:
         assert sorted(p.name for p in tmp_path.iterdir()) == before and not out.exists()
         assert captured.out == ""
-    else:  # the run learnt nothing: no equation printed, the result written and complete
+    elif command == "run":  # the run learnt nothing: no equation printed, the result written and complete
         assert "adapted:" not in captured.out
         result = json.loads((out / "result.json").read_text())
         assert result["version"] == 1 and result["equations"]
         if "diverged" in name:
             assert all(c["diverged"] for c in result["equations"][0]["ranking"])
+    else:  # the diagnosis learnt nothing: no verdict printed, the report written, complete and saying so
+        assert "verdict:" not in captured.out and (out / "report.md").is_file()
+        report = json.loads((out / "gap_report.json").read_text())
+        assert report["equations"] and all(c["diverged"] for c in report["equations"][0]["ranking"])
 
 
 def test_corpus_size_and_outcome_table(capsys):

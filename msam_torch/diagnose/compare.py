@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import scipy.signal
 import torch
 
 from ..errors import MSAMError
@@ -19,6 +20,8 @@ from .hypotheses import Fitted
 from .options import DiagnoseOptions
 
 PER_PERIOD = 0.04  # a fixed step starts at most at this share of the band's period
+STEPS = 500  # ... and at most at this share of the record
+CHECK_STEPS = 1000  # the step is checked over this many of its steps from the record's start
 HALVINGS = 2  # a fixed step is halved at most this often (then the runs are marked not converged)
 DIVERGED = 10.0  # a free run this many standard deviations off the measurement (NRMSE) has diverged
 AGREEMENT = 1e-2  # runs at a step and twice it agree within this share of a state's magnitude
@@ -65,7 +68,8 @@ def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, serie
         for model in models:
             yhat = model.rate({k: v.unsqueeze(0) for k, v in s.items()})[:3]  # (3, N)
             one_step[model.equation.target] = measures.by_model(measures.error_measures(s[model.equation.target], yhat))
-            series[model.equation.target][f"one_step_{label}"] = {"t": s["t"], "y": s[model.equation.target], "yhat": yhat}
+            series[model.equation.target][f"one_step_{label}"] = {"t": s["t"], "y": s[model.equation.target], "yhat": yhat,
+                                                                  "inputs": {u: s[u] for u in spec.inputs if u in s}}
         out["one_step"][label] = one_step
     if not options.free_run:
         return out
@@ -88,17 +92,19 @@ def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, serie
         out["free_run"][label] = entry
         for target in series:
             series[target][f"free_run_{label}"] = {"t": s["t"], "measured": {x: s[x] for x in measured},
-                                                   "simulated": {x: trajectory[x][:3] for x in measured}}
+                                                   "simulated": {x: trajectory[x][:3] for x in measured},
+                                                   "inputs": {u: s[u] for u in spec.inputs}}
     return out
 
 
 def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: DiagnoseOptions, band: float) -> tuple:
     """Free runs from each set's first (estimated) state under its inputs; sets on the same time
     grid are integrated in one batch. A fixed-step solver without a given step starts at
-    :func:`~msam_torch.simulation.simulate_equations`'s default or 1/25 of the band's period, whichever is
-    shorter, and halves it until the three point models'
-    runs at the step and at twice it agree (:func:`converged`), at most :data:`HALVINGS` times
-    (each set's ``solver`` entry says whether they agreed); an adaptive one keeps its
+    :data:`PER_PERIOD` of the band's period (at most 1/:data:`STEPS` of the record) and halves it
+    until the three point models' runs at the step and at twice it agree (:func:`converged`) over
+    the first :data:`CHECK_STEPS` steps, at most :data:`HALVINGS` times (each set's ``solver``
+    entry says whether they agreed): the step follows the dynamics, not the record's length or
+    sampling, so the cost grows linearly with the record. An adaptive solver keeps its
     tolerances, ``atol`` relative to each state's measured magnitude."""
     grids = {label: d.signals["t"] for label, d in sets.items()}
     same = len(sets) == 2 and grids["train"].shape == grids["held_out"].shape and torch.allclose(
@@ -110,29 +116,38 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
         t = grids[group[0]]
         sizes = [batches[label][0].choice.shape[0] for label in group]
         batch = [_concat([batches[label][e] for label in group]) for e in range(len(batches[group[0]]))]
-        inputs = {u: torch.cat([sets[label].signals[u].expand(n, -1) for label, n in zip(group, sizes)])
+        step, agree, trajectory = options.solver_step, True, None
+        auto = fixed and step is None
+        if auto:
+            step = min(float(t[-1] - t[0]) / STEPS, PER_PERIOD / band)
+        seen = lambda u: anti_aliased(u, float(t[1] - t[0]), 2 * step if auto else step) if fixed else u
+        inputs = {u: torch.cat([seen(sets[label].signals[u]).expand(n, -1) for label, n in zip(group, sizes)])
                   for u in spec.inputs}
         initial = {x: torch.cat([sets[label].signals[x][0].expand(n) for label, n in zip(group, sizes)]) for x in spec.states}
         scale = {x: max(float(sets[label].signals[x].abs().max()) for label in group) for x in spec.states}
         atol = torch.tensor([options.atol * max(scale[x], torch.finfo(t.dtype).tiny) for x in spec.states],
                             dtype=t.dtype, device=t.device)
-        run = lambda models, step, keep=None: simulate(
-            spec, models, t, {u: v if keep is None else v[keep] for u, v in inputs.items()},
+        run = lambda models, step, n, keep=None: simulate(
+            spec, models, t[:n], {u: (v if keep is None else v[keep])[..., :n] for u, v in inputs.items()},
             {x: v if keep is None else v[keep] for x, v in initial.items()}, method=options.solver, step=step,
             rtol=options.rtol, atol=atol, scale=scale)
-        step, agree = options.solver_step, True
-        trajectory = run(batch, step)
-        if fixed and step is None:  # the run at twice the step agrees, or the step is halved
-            step = min(float(t[1] - t[0]) * max(1, t.shape[0] // 500), PER_PERIOD / band)  # simulate's default
+        if auto:  # the run at twice the step agrees, or the step is halved
+            n = max(2, int((t <= t[0] + CHECK_STEPS * step).sum()))
             points = torch.cat([torch.arange(o, o + 3) for o in torch.tensor([0] + sizes[:-1]).cumsum(0).tolist()])
-            coarse = run([_pick(m, points) for m in batch], 2 * step, points)
+            check = lambda step: run([_pick(m, points) for m in batch], step, n, points)
+            whole = n == t.shape[0]  # the check spans the record: its fine runs are the free runs
+            fine = lambda step: run(batch, step, n) if whole else check(step)
+            at_points = lambda runs: {x: v[points] for x, v in runs.items()} if whole else runs
+            coarse, runs = check(2 * step), fine(step)
             for halving in range(HALVINGS + 1):
-                agree = converged(coarse, {x: v[points] for x, v in trajectory.items()}, scale)
+                agree = converged(coarse, at_points(runs), scale)
                 if agree or halving == HALVINGS:
                     break
-                coarse = {x: v[points] for x, v in trajectory.items()}
-                step /= 2
-                trajectory = run(batch, step)
+                coarse, step = at_points(runs), step / 2
+                runs = fine(step)
+            trajectory = runs if whole else None
+        if trajectory is None:
+            trajectory = run(batch, step, t.shape[0])
         for label in group:
             steps[label] = {"method": options.solver, "step": step, "converged": agree,
                             **({} if fixed else {"rtol": options.rtol, "atol": options.atol})}
@@ -140,6 +155,17 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
         for k, label in enumerate(group):
             result[label] = {x: v[offsets[k]:offsets[k + 1]] for x, v in trajectory.items()}
     return result, steps
+
+
+def anti_aliased(signal: torch.Tensor, dt: float, step: float) -> torch.Tensor:
+    """An input as a fixed-step solver stepping over samples sees it: low-passed at the Nyquist
+    frequency of ``step`` (zero-phase Butterworth, order 4), so that runs at different steps read
+    the same input and differ only by their integration error; unchanged when ``step`` <= ``dt``."""
+    if step <= dt * (1 + 1e-9):
+        return signal
+    sos = scipy.signal.butter(4, 0.5 / step, fs=1 / dt, output="sos")
+    filtered = scipy.signal.sosfiltfilt(sos, signal.detach().cpu().double().numpy())
+    return torch.as_tensor(filtered.copy(), dtype=signal.dtype, device=signal.device)
 
 
 def converged(coarse: dict, fine: dict, scale: dict) -> bool:

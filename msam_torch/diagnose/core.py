@@ -43,16 +43,16 @@ def diagnose(config: Config | dict | str | Path, data: DataArgument = None, vali
     or a :class:`~msam_torch.data.Dataset`); default: the config's own data. ``validation``:
     held-out data in the same forms (default: the config's validation range or file; without
     any, alternate time blocks of the training record are held out). Paths in the config are
-    relative to ``base_dir`` (default: the config file's folder). Effects are added in turn, at
-    most ``options.max_effects`` (:func:`.multi.in_turn`).
+    relative to ``base_dir`` (default: the config file's folder). With ``options.max_effects``
+    above 1, effects are added in turn, at most that many (:func:`.multi.in_turn`).
     """
     check_solver(options.solver)
     if base_dir is None:
         base_dir = Path(config).parent if isinstance(config, (str, Path)) else Path(".")
     if not isinstance(config, Config):
         config = load_config(config, overrides)
-    return in_turn(config, lambda c: _diagnose_once(c, data, validation, options, Path(base_dir)),
-                   options.max_effects)
+    once = lambda c: _diagnose_once(c, data, validation, options, Path(base_dir))
+    return once(config)[0] if options.max_effects == 1 else in_turn(config, once, options.max_effects)
 
 
 def _diagnose_once(config: Config, data: DataArgument, validation: DataArgument, options: DiagnoseOptions,
@@ -87,6 +87,7 @@ def _diagnose_once(config: Config, data: DataArgument, validation: DataArgument,
                  "nominal_parameters": parameters}
     report = GapReport(verdict_kind=kind, verdict=verdict, equations=gaps, measures=gap_measures, data=data_info,
                        options=asdict(options), config=config.model_dump(mode="json"),
-                       seconds=time.perf_counter() - started, reasons=tuple(reasons), series=series)
+                       seconds=time.perf_counter() - started, reasons=tuple(reasons), series=series,
+                       models=tuple(e.model for e in equations))
     models = {e.gap.target: e.model for e in equations}
     return report, lambda targets: with_effects(config, spec.equations, {t: models[t] for t in targets})

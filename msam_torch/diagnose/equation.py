@@ -20,6 +20,7 @@ from .compare import models
 from .estimation import Estimation
 from .hypotheses import (Fitted, Hypothesis, encode, enumerate_hypotheses, exponent, extended_equation, fit,
                          fitted_text, heldout_rmse)
+from .intervals import term_intervals
 from .localise import starting_where
 from .naming import Naming, name_hypotheses
 from .options import DiagnoseOptions
@@ -104,6 +105,7 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
         estimator={"test_function": "bump (1-s^2)^4", "half_width": weak.tests.half_width * weak.tests.dt,
                    "half_width_samples": weak.tests.half_width, "rows": weak.rows, **estimation.info},
         checks={**checks, "reasons": reasons},
+        intervals=term_intervals(extended, equation, choices, original, boot, winner, weak.scale),
     )
     model = models(extended, equation, nominal, choices, original, boot, winner, is_effect, weak.scale)
     return EquationDiagnosis(gap, model, {"where": where["series"]})

@@ -7,7 +7,7 @@ band (:class:`~msam_torch.derivatives.InBand`). The band edge ``f_b`` is the hig
 measured states (what the inputs excited in the system), of the frequency below which 99 % of a signal's power above its
 white-noise floor lies; the bump test function passes ``f_b`` at half amplitude for the half-width
 ``h = 0.6 / f_b`` (time units of the system, not a share of the record). Records sampled far
-faster than the band are low-pass filtered and decimated (``scipy.signal.decimate``) to about
+faster than the band are low-pass filtered and decimated (:func:`~msam_torch.bandwidth.decimate`) to about
 ``quadrature_samples`` samples, never below 7 samples per band period nor 16 per half-width."""
 from __future__ import annotations
 
@@ -15,37 +15,20 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.ndimage import uniform_filter1d
-from scipy.signal import decimate
 
+from ..bandwidth import band_edge, decimate
 from ..config import DataConfig
 from ..data import Dataset, build_dataset
-from ..derivatives import BAND, DerivativeEstimator, InBand, noise_level
+from ..derivatives import DerivativeEstimator, InBand
 from ..errors import DataError
 from ..spec import ModelSpec
 
-POWER_SHARE = 0.99  # share of a signal's power above the noise floor that lies in the band
 HALF_AMPLITUDE = 0.6  # f h at which the bump (1 - s^2)^4 of half-width h passes half the amplitude
 SAMPLES_PER_PERIOD = 7  # decimation keeps the band edge below 1/7 of the sampling rate
 DERIVATIVE_MARGIN = 2.0  # a derivative's smoother passes twice the band edge
 SHORTEST = 4  # samples in a test function's half-width, at least
 QUADRATURE = 16  # decimation keeps at least this many samples in a half-width
 WIDEST = 0.1  # of the record: a test function's half-width, at most
-
-
-def band_edge(y: np.ndarray) -> float:
-    """Frequency (cycles per sample) below which :data:`POWER_SHARE` of the power of ``y`` above
-    its white-noise floor lies (detrended, Hann-tapered, band-averaged periodogram)."""
-    n = y.size
-    index = np.arange(n)
-    detrended = y - np.polyval(np.polyfit(index, y, 1), index)
-    taper = np.hanning(n)
-    power = uniform_filter1d(np.abs(np.fft.rfft(detrended * taper)) ** 2, size=min(BAND, n // 2 + 1), mode="nearest")
-    signal = np.clip(power - noise_level(y) ** 2 * np.sum(taper**2), 0.0, None)
-    total = np.cumsum(signal)
-    if total[-1] <= 0:
-        return 0.5
-    return float(np.fft.rfftfreq(n)[np.searchsorted(total, POWER_SHARE * total[-1])])
 
 
 @dataclass(frozen=True)
@@ -76,8 +59,7 @@ def _signals(measured: dict, every: int, band: float, data: DataConfig, spec: Mo
              estimator: DerivativeEstimator, exact: bool, source: str) -> dict:
     """Decimated measured signals and the derivatives the model reads that they lack."""
     t = measured["t"][::every]
-    kept = {k: (decimate(v, every, ftype="fir", zero_phase=True) if every > 1 else v)[:t.size]
-            for k, v in measured.items() if k != "t"}
+    kept = {k: decimate(v, every) for k, v in measured.items() if k != "t"}
     if exact:  # every signal given (noise-free simulation): nothing to estimate
         return {"t": torch.tensor(t, dtype=dtype), "derivatives": "given",
                 **{k: torch.tensor(np.ascontiguousarray(v), dtype=dtype) for k, v in kept.items()}}

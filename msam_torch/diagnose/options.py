@@ -30,7 +30,7 @@ class DiagnoseOptions:
     rtol: float = 1e-6  # adaptive solvers: relative tolerance
     atol: float = 1e-8  # adaptive solvers: absolute tolerance, relative to each state's measured magnitude
     seed: int = 0
-    max_effects: int = 3  # effects added in turn, at most (.multi; 1: the first effect only)
+    max_effects: int = 1  # effects added in turn, at most (.multi; 1: the first effect only, no loop)
 
     def __post_init__(self):
         if isinstance(self.max_effects, bool) or not isinstance(self.max_effects, int) or self.max_effects < 1:

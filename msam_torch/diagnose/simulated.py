@@ -64,7 +64,7 @@ def diagnose_simulated(plan: Plan, base_dir: Path, options, data=None, validatio
         where = _remaining_gap(plan, eq, adapted, runs["train"])
         series[eq.target] = {"where": where["series"]} if where["series"] else {}
         for key, run in runs.items():
-            series[eq.target][f"free_run_{RECORDS[key]}"] = _trajectories(run)
+            series[eq.target][f"free_run_{RECORDS[key]}"] = _trajectories(run, spec.inputs)
         gaps.append(_equation_gap(eq, adapted, models["start"][e].theta, models["retuned"][e].theta, significant,
                                   rmse, target_rms, where["summary"], options, plan))
     kind, verdict, reasons = overall(gaps, significant, name_targets=True)
@@ -153,6 +153,7 @@ def _free_run_measures(run: FreeRun) -> dict:
             "gap_closed": {k: float(v[0]) for k, v in closed.items()}}
 
 
-def _trajectories(run: FreeRun) -> dict:
+def _trajectories(run: FreeRun, inputs) -> dict:
     return {"t": run.record.t, "measured": {o: run.record.outputs[k] for k, o in enumerate(run.outputs)},
-            "simulated": {o: run.simulated[:, k] for k, o in enumerate(run.outputs)}}
+            "simulated": {o: run.simulated[:, k] for k, o in enumerate(run.outputs)},
+            "inputs": {u: v for u, v in zip(run.model.external, run.record.external.unbind(-1)) if u in inputs}}

@@ -1,11 +1,13 @@
 """The simulation evaluator of :class:`~msam_torch.trainer.Trainer`: candidates judged by their
 simulated outputs (the paper's section 2 alternative to Eq. 6).
 
-The step is Eq. 15-18 on the simulated output: the structural sensitivities are the exact
-``d yhat / d gamma_i`` in dM-scaled units, ``Phi_i = d yhat / d gamma_i * dgamma / dM_i`` (Eq. 16,
-``scaling: dm``), or in exponent units (``gauss_newton``); theta (``theta: varpro``) and the
-initial states (``simulation.initial: estimate``) are stepped jointly with the exponents
-(Gauss-Newton on the stacked Jacobian). The line search simulates all its step sizes in one batch.
+The step is Eq. 15-18 on the simulated output: the structural sensitivities are the change
+``yhat(Gamma + dgamma e_i) - yhat(Gamma)`` in dM-scaled units (Eq. 16, ``scaling: dm``) or in
+exponent units (``gauss_newton``); theta (``theta: varpro``) and the initial states
+(``simulation.initial: estimate``) are stepped jointly with the exponents (Gauss-Newton on the
+stacked Jacobian). dM (Eq. 15) costs a simulated row per exponent and adjustable theta, so it is
+simulated only for the dM-scaled step or the trainer's diagnostics (NaN in the step's result
+otherwise). The line search simulates all its step sizes in one batch.
 """
 from __future__ import annotations
 
@@ -56,12 +58,13 @@ class SimulationEvaluator:
         if data.refit_steps:  # theta and initial states refitted for the current exponents (variable projection by iteration)
             z, yhat = fit_parameters(data, selection.choice(state), state.gamma, z, free, data.refit_steps)
             current = replace(current, yhat=yhat, fitness=torch.where(state.diverged, current.fitness, fitness(selection.y, yhat)))
-        jac = jacobians(data, selection.choice(state), state.gamma, z, options.dgamma, free)
+        scaled = options.scaling == "dm"
+        jac = jacobians(data, selection.choice(state), state.gamma, z, options.dgamma, free, dm=scaled or conditions)
         blown = ~usable(current.yhat).all(-1, keepdim=True)  # (T, C, 1): its simulation left the float range
         eps = torch.where(blown, torch.zeros_like(current.yhat), selection.y - current.yhat)
-        phi_scaled = structural_sensitivities(jac.change, jac.dm)
+        phi_scaled = structural_sensitivities(jac.change, jac.dm) if scaled or conditions else None
         phi_unscaled = structural_sensitivities(jac.change, torch.full_like(jac.dm, options.dgamma))
-        phi_gamma = phi_scaled if options.scaling == "dm" else phi_unscaled
+        phi_gamma = phi_scaled if scaled else phi_unscaled
         phi = torch.where(blown.unsqueeze(-1), 0.0, torch.cat([phi_gamma, jac.z[..., free]], -1))
         delta = lstsq(phi, eps, options.damping, options.rcond)
         delta_gamma, delta_z = delta[..., :q], torch.zeros_like(z)

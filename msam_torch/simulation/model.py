@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from functools import cached_property
 
 import torch
+import torch.autograd.forward_ad as forward_ad
 
 from ..candidates import FLOOR, power
 from ..config import Config
@@ -102,61 +104,128 @@ class SystemModel:
         """Adjustment functions (..., G)."""
         return _stack([f(values) for f in self.functions], shape, values["t"].dtype)
 
+    @cached_property
+    def columns(self) -> "Columns":
+        """The layout of the signal matrix Eq. 9 reads (see :class:`Columns`)."""
+        components = [self.equations[e].components[i].term for e, i in self.adjustable + self.fixed]
+        distinct = {x.text: x for x in (*self.functions, *components) if x.text not in self.states}
+        inner = tuple(x for x in distinct.values() if x.names & set(self.states))
+        outer = tuple(x for x in distinct.values() if not x.names & set(self.states))
+        order = list(self.states) + [x.text for x in inner + outer] + [None]
+        return Columns(inner, outer, tuple(order.index(f.text) for f in self.functions) + (len(order) - 1,),
+                       tuple(order.index(x.text) for x in components))
+
     def equation_rates(self, p: Parameters, dtype, device):
         """``rates(values, shape)``: every equation's modelled target (*shape, E) by Eq. 9, with
         the constants of ``p`` bound once; ``shape`` is the signals' batch shape, ending in p's B
-        rows or broadcastable to them. The unadjusted choice picks an appended constant function 1
-        (factor 1 for any exponent)."""
-        def assign(components):
-            matrix = torch.zeros(len(components), len(self.equations), dtype=dtype, device=device)
+        rows or broadcastable to them."""
+        eq9 = _Eq9(self, p, dtype, device, kinematic=False)
+        return lambda values, shape: eq9(self._signals(values, shape, dtype), shape)
+
+    def rhs(self, p: Parameters, dtype, device):
+        """``rates(values, x)``: ``d x / dt`` (B, S) from the equations (Eq. 9) and the kinematic states."""
+        eq9 = _Eq9(self, p, dtype, device, kinematic=True)
+        return lambda values, x: eq9(self._signals(values, x.shape[:-1], dtype), x.shape[:-1])
+
+    def stage_rates(self, p: Parameters, t: torch.Tensor, external: torch.Tensor):
+        """``rate(j, x)``: ``d x / dt`` (B, S) at the j-th of the times ``t`` (K,), the external
+        signals there being ``external`` (K, E) or (B, K, E). The expressions that read no state
+        are tabulated over all K times at once; a stage evaluates only the others."""
+        b, dtype, columns = p.theta.shape[0], t.dtype, self.columns
+        eq9 = _Eq9(self, p, dtype, t.device, kinematic=True)
+        signals = self.values(t, t.new_zeros(t.shape + (0,)), external)
+        one = _constant(torch.ones((), dtype=dtype, device=t.device), p.theta)
+        shared = external.dim() == 2  # the same signals for every row: one (K, O + 1) table, read as expanded views
+        table = _stack([x(signals) for x in columns.outer] + [one], t.shape if shared else (b, t.shape[0]), dtype)
+        tabulated = [row.expand(b, -1) for row in table.unbind(0)] if shared else table.unbind(1)  # K x (B, O + 1)
+        if not columns.inner:
+            return lambda j, x: eq9(torch.cat([x, tabulated[j]], -1), x.shape[:-1])
+        read = sorted(set().union(*(x.names for x in columns.inner)) - set(self.states))
+        at = [dict(zip(read, v)) for v in zip(*(signals[n].unbind(-1) for n in read))] if read else [{}] * t.shape[0]
+
+        def rate(j: int, x: torch.Tensor) -> torch.Tensor:
+            values = dict(zip(self.states, x.unbind(-1)), **at[j])
+            inner = _stack([f(values) for f in columns.inner], x.shape[:-1], dtype)
+            return eq9(torch.cat([x, inner, tabulated[j]], -1), x.shape[:-1])
+
+        return rate
+
+    def _signals(self, values: dict, shape, dtype) -> torch.Tensor:
+        """The signal matrix (*shape, K) of :class:`Columns` from named values."""
+        columns = self.columns
+        expressions = [*(values[s] for s in self.states), *(x(values) for x in columns.inner + columns.outer), 1.0]
+        return _stack(expressions, shape, dtype)
+
+
+@dataclass(frozen=True)
+class Columns:
+    """Where Eq. 9 reads its signals: one matrix whose columns are the simulated states, the
+    distinct expressions (adjustment functions and terms) that read a state (``inner``), those
+    that read none (``outer``: the solver tabulates them once over all its stage times), and the
+    constant 1 an unadjusted component is raised to a power of (factor 1 for any exponent)."""
+
+    inner: tuple
+    outer: tuple
+    functions: tuple[int, ...]  # column of each adjustment function (G), then of the constant 1
+    terms: tuple[int, ...]  # column of each adjustable component's term (Qa), then each fixed one's (P)
+
+
+class _Eq9:
+    """Eq. 9 on a signal matrix v (*shape, K) laid out by :class:`Columns`, the constants of ``p``
+    bound once per batch shape: ``sum_i theta_i M_i f_i^gamma_i + sum_j theta_j M_j`` per
+    equation, or (``kinematic``) the rate of every simulated state (an equation's target, or the
+    state that holds its derivative). The operations and their order are those of the per-call
+    formulation (products per component, then sums per equation), so the results are the same
+    to the last bit however the signals were gathered."""
+
+    def __init__(self, model: SystemModel, p: Parameters, dtype, device, kinematic: bool):
+        columns = model.columns
+        magnitudes = {f.is_magnitude for f in model.functions}
+        self.p, self.signed, self.mixed = p, False in magnitudes, len(magnitudes) > 1  # sign(1) = 1 for the constant
+        self.function_column = torch.tensor(columns.functions, device=device)[p.choice]  # (B, Qa)
+        self.inverse_scale = torch.gather(torch.nn.functional.pad(1.0 / p.scale, (0, 1), value=1.0), -1, p.choice)
+        self.magnitude = torch.tensor([f.is_magnitude for f in model.functions] + [True], device=device)[p.choice]
+        q = len(model.adjustable)
+        self.terms = torch.tensor(columns.terms[:q], dtype=torch.long, device=device)
+        self.fixed_terms = torch.tensor(columns.terms[q:], dtype=torch.long, device=device)
+
+        def assign(components):  # component -> equation
+            matrix = torch.zeros(len(components), len(model.equations), dtype=dtype, device=device)
             for k, (e, _) in enumerate(components):
                 matrix[k, e] = 1.0
             return matrix
 
-        inverse_scale = torch.nn.functional.pad(1.0 / p.scale, (0, 1), value=1.0)
-        magnitude = torch.tensor([f.is_magnitude for f in self.functions] + [True], device=device)
-        signed = not all(f.is_magnitude for f in self.functions)
-        adjustable_terms = [self.equations[e].components[i].term for e, i in self.adjustable]
-        fixed_terms = [self.equations[e].components[i].term for e, i in self.fixed]
-        assign_adjustable, assign_fixed = assign(self.adjustable), assign(self.fixed)
-        bound: dict = {}  # the constants of p per batch shape
+        self.assign_adjustable, self.assign_fixed = assign(model.adjustable), assign(model.fixed)
+        self.source = torch.tensor(model.source, device=device) if kinematic else None  # from cat(states, equations)
+        self.bound: dict = {}
 
-        def constants(shape):
-            if shape not in bound:
-                rows = (lambda v: v) if len(shape) == 1 else (lambda v: v.view(v.shape[:1] + (1,) * (len(shape) - 1) + v.shape[1:]))
-                bound[shape] = (rows(p.choice).expand(shape + p.choice.shape[-1:]), rows(p.gamma), rows(p.theta),
-                                rows(p.theta_fixed), rows(inverse_scale), rows(inverse_scale[..., -1]).expand(shape))
-            return bound[shape]
+    def constants(self, shape):
+        if shape not in self.bound:
+            p = self.p
+            rows = (lambda v: v) if len(shape) == 1 else (lambda v: v.view(v.shape[:1] + (1,) * (len(shape) - 1) + v.shape[1:]))
+            self.bound[shape] = (rows(self.function_column).expand(shape + self.function_column.shape[-1:]),
+                                 rows(self.inverse_scale), rows(self.magnitude), rows(p.gamma), rows(p.theta),
+                                 rows(p.theta_fixed))
+        return self.bound[shape]
 
-        def rates(values: dict, shape) -> torch.Tensor:
-            cache: dict = {}
-            choice, gamma, theta, theta_fixed, inverse_scale_, one = constants(shape)
-            f = _stack([_cached(g, values, shape, cache) for g in self.functions] + [one], shape, dtype)
-            f = f * inverse_scale_  # exact where the scale is 1 (normalize: none)
-            factor = power(torch.gather(torch.log(f.abs().clamp_min(FLOOR)), -1, choice), gamma)
-            if signed:
-                factor = factor * torch.gather(torch.where(magnitude, torch.ones_like(f), torch.sign(f)), -1, choice)
-            terms = _stack([_cached(m, values, shape, cache) for m in adjustable_terms], shape, dtype)
-            out = (terms * factor * theta) @ assign_adjustable
-            if fixed_terms:
-                fixed = _stack([_cached(m, values, shape, cache) for m in fixed_terms], shape, dtype)
-                out = out + (fixed * theta_fixed) @ assign_fixed
+    def __call__(self, v: torch.Tensor, shape) -> torch.Tensor:
+        column, inverse_scale, magnitude, gamma, theta, theta_fixed = self.constants(shape)
+        f = torch.gather(v, -1, column) * inverse_scale  # exact where the scale is 1 (normalize: none)
+        factor = power(torch.log((f.abs() if self.signed else f).clamp_min(FLOOR)), gamma)  # f >= 0 for abs(...)
+        if self.signed:  # |f|^gamma for abs(...), sign(f) |f|^gamma otherwise
+            factor = factor * (torch.where(magnitude, 1.0, torch.sign(f)) if self.mixed else torch.sign(f))
+        out = (torch.index_select(v, -1, self.terms) * factor * theta) @ self.assign_adjustable
+        if self.fixed_terms.shape[0]:
+            out = out + (torch.index_select(v, -1, self.fixed_terms) * theta_fixed) @ self.assign_fixed
+        if self.source is None:
             return out
-
-        return rates
-
-    def rhs(self, p: Parameters, dtype, device):
-        """``rates(values, x)``: ``d x / dt`` (B, S) from the equations (Eq. 9) and the kinematic states."""
-        equation_rates = self.equation_rates(p, dtype, device)
-        source = torch.tensor(self.source, device=device)
-        return lambda values, x: torch.index_select(torch.cat([x, equation_rates(values, x.shape[:-1])], -1), -1, source)
+        return torch.index_select(torch.cat([v[..., : self.source.shape[0]], out], -1), -1, self.source)
 
 
-def _cached(expression, values: dict, shape, cache: dict):
-    """Evaluate each distinct expression text once per call."""
-    if expression.text not in cache:
-        cache[expression.text] = expression(values)
-    return cache[expression.text]
+def _constant(value: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """``value`` as a dual tensor with zero tangent where ``like`` is dual (forward mode takes a
+    slow path for an operation between a dual tensor and a plain one)."""
+    return value if forward_ad.unpack_dual(like).tangent is None else forward_ad.make_dual(value, torch.zeros_like(value))
 
 
 def _stack(items: list, shape, dtype) -> torch.Tensor:

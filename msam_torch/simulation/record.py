@@ -19,6 +19,7 @@ from ..config import Config
 from ..data import Dataset, Table, resolve_datasets
 from ..derivatives import DerivativeEstimator
 from ..errors import DataError
+from ..information import check_simulation_record
 from ..spec import ModelSpec, split_derivative
 from .model import SystemModel
 
@@ -106,6 +107,7 @@ def _record(dataset: Dataset, model: SystemModel, outputs, raw, initial_guess, h
     if missing:
         raise DataError(f"{dataset.info.get('source', 'data')}: simulation needs the signals {missing} "
                         f"(it has {sorted(set(signals) - {'t'})})")
+    check_simulation_record(model.equations, outputs, model.external, signals, dataset.info.get("source", "data"))
     as_tensor = lambda v: torch.as_tensor(np.asarray(v, dtype=float).copy(), dtype=dtype)
     first = lambda s: float(signals[s][0]) if s in raw or (s in signals and s not in initial_guess) \
         else float(initial_guess.get(s, 0.0))

@@ -31,22 +31,25 @@ class Jacobians:
 
 
 def jacobians(data: SimulationData, choice, gamma, z, dgamma: float, free: torch.Tensor | None = None,
-              structural: bool = True) -> Jacobians:
+              structural: bool = True, dm: bool = True) -> Jacobians:
     """Sensitivities of the output at (gamma, z) (T, C, .) for the ``free`` entries of z (default
-    ``data.free``) and, when ``structural``, the adjustable theta, dM and the change of Eq. 16:
-    rows ``e_j`` on z for the free and adjustable-theta columns, and ``e_j`` on the adjustable
-    theta at ``gamma + dgamma e_i``."""
+    ``data.free``) and, when ``structural``, the change of Eq. 16 and, when ``dm``, dM (Eq. 15):
+    rows ``e_j`` on z for the free (and, for dM, adjustable-theta) columns, rows at
+    ``gamma + dgamma e_i`` (for dM: one per adjustable theta ``e_j``; NaN dM without)."""
     q, zq = gamma.shape[-1], z.shape[-1]
     p = zq - q - data.initial.shape[-1]
+    dm = dm and structural
     perturb = (data.free if free is None else free).clone()
-    if structural:
+    if dm:
         perturb[:q] = True
     columns = torch.nonzero(perturb).flatten().tolist()
     eye_q = torch.eye(q, dtype=z.dtype, device=z.device)
     eye_z = torch.eye(zq, dtype=z.dtype, device=z.device)
-    nq = q if structural else 0
-    points = [gamma] * len(columns) + [gamma + dgamma * eye_q[i] for i in range(nq) for _ in range(nq)]
-    tangent_z = [eye_z[j].expand_as(z) for j in columns] + [eye_z[j].expand_as(z) for _ in range(nq) for j in range(nq)]
+    shifted = (q if dm else 1) if structural else 0  # rows per shifted exponent
+    bases = max(len(columns), 1 if structural else 0)  # rows at (gamma, z): one per free column, at least one
+    points = [gamma] * bases + [gamma + dgamma * eye_q[i] for i in range(q if shifted else 0) for _ in range(shifted)]
+    tangent_z = [eye_z[j].expand_as(z) for j in columns] + [torch.zeros_like(z)] * (bases - len(columns)) \
+        + [eye_z[j].expand_as(z) if dm else torch.zeros_like(z) for _ in range(q if shifted else 0) for j in range(shifted)]
     if not points:
         base = data.output(gamma, choice, *unpacked(z, q, p))
         zero = base.new_zeros(base.shape + (zq,))
@@ -72,10 +75,11 @@ def jacobians(data: SimulationData, choice, gamma, z, dgamma: float, free: torch
     if not structural:
         return Jacobians(jz[..., :0], jz, torch.zeros_like(gamma), base)
     values = torch.where(usable(out), out, torch.zeros_like(out))
-    change = (values[..., k:: q, :] - values[..., :1, :]).mT  # rows at Gamma + dgamma e_i, less the base
+    change = (values[..., bases:: shifted, :] - values[..., :1, :]).mT  # rows at Gamma + dgamma e_i, less the base
+    if not dm:
+        return Jacobians(change, jz, torch.full_like(gamma, torch.nan), base)
     s = jz[..., :q]  # (T, C, N, Qa) sensitivity to the adjustable theta at Gamma
     s_perturbed = derivative[..., k:, :].unflatten(-2, (q, q))  # (T, C, i, j, N) at Gamma + dgamma e_i
     numerator = torch.linalg.vector_norm(s_perturbed.mT - s.unsqueeze(-3), dim=-1).sum(-1)
     denominator = torch.linalg.vector_norm(s, dim=-1).sum(-1, keepdim=True)
-    dm = numerator / denominator.clamp_min(torch.finfo(z.dtype).tiny)
-    return Jacobians(change, jz, dm, base)
+    return Jacobians(change, jz, numerator / denominator.clamp_min(torch.finfo(z.dtype).tiny), base)
