@@ -83,14 +83,11 @@ def get_system(name: str, key: str = "data.system") -> System:
 
 def measure(system: System, parameters: Mapping[str, float] | None = None, dtype=torch.float64,
              rtol: float = 1e-10, atol: float = 1e-10) -> dict[str, torch.Tensor]:
-    """Simulate ``system`` on its grid; return ``t``, states, exact derivatives and inputs (N,).
-    The adaptive solver steps on every sample time, so it never steps over the inputs' detail
-    (from rest under a small input, an unbounded step can skip a long record's excitation)."""
+    """Simulate ``system`` on its grid; return ``t``, states, exact derivatives and inputs (N,)."""
     p = dict(system.parameters if parameters is None else parameters)
     t = torch.linspace(0.0, system.t_end, system.samples, dtype=dtype)
     func = lambda tt, s: system.rhs(tt, s, p, {k: u(tt) for k, u in system.inputs.items()})
-    trajectory = odeint(func, torch.tensor(system.initial, dtype=dtype), t, rtol=rtol, atol=atol, method="dopri5",
-                        options={"step_t": t})
+    trajectory = odeint(func, torch.tensor(system.initial, dtype=dtype), t, rtol=rtol, atol=atol, method="dopri5")
     inputs = {k: u(t) for k, u in system.inputs.items()}
     rates = system.rhs(t, trajectory, p, inputs)
     signals = {"t": t, **inputs}
