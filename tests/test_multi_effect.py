@@ -18,17 +18,11 @@ from msam_torch.diagnose.multi import in_turn
 from msam_torch.errors import ConfigError
 from msam_torch.simulation import EquationModel
 from msam_torch.spec import ModelSpec
-from msam_torch.systems import System, measure, multisine
+from msam_torch.systems import WITHHELD as SUITE, System, measure, multisine
 from msam_torch.zoo import SHARE_FLOOR, generate_pair, score
 from msam_torch.zoo.effects import separable
 
-MODEL = {
-    "states": ["x", "x_dot"], "inputs": ["u"], "parameters": {"m": 1.0, "c": 0.5, "k": 4.0},
-    "quantities": {"x": "position", "x_dot": "velocity", "u": "force"},
-    "equations": [{"target": "x_ddot", "components": [{"term": "x_dot", "theta": "-c/m"}, {"term": "x", "theta": "-k/m"},
-                                                      {"term": "u", "theta": "1/m", "adjustable": False}],
-                   "adjustments": ["abs(x_dot)", "abs(x)"]}],
-}
+MODEL = SUITE["msd_coulomb"].model  # the withheld-effect suite's mass-spring-damper starting model
 EXCITATIONS = (multisine((0.4, 0.7, 1.1, 1.5, 1.9, 2.4, 3.0, 3.7), 2.5), multisine((0.5, 0.9, 1.3, 1.7, 2.2, 2.8), 2.2))
 WITHHELD = {  # name -> (catalogue names, force the starting model lacks)
     "coulomb_and_cubic": ({"Coulomb friction", "hardening cubic stiffness"},
