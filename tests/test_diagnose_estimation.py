@@ -3,7 +3,6 @@ command line (docs/design.md section 3b)."""
 import json
 import math
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +16,6 @@ from msam_torch.derivatives import BAND
 from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
 from msam_torch.diagnose.estimation import HALF_AMPLITUDE
 from msam_torch.diagnose.verdict import equation_verdict, free_run_reasons
-from msam_torch.systems import WITHHELD
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
 from bench_diagnose import records  # noqa: E402  (the benchmark's records: one source of them)
