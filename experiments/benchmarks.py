@@ -39,7 +39,7 @@ from msam_torch.allocator import keep_freed_memory
 from msam_torch.api import adapt
 from msam_torch.config import load_config
 from msam_torch.diagnose import DiagnoseOptions, diagnose
-from msam_torch.simulate import EquationModel, simulate
+from msam_torch.simulation import EquationModel, simulate_equations as simulate
 from msam_torch.spec import ModelSpec, derivative_name, split_derivative
 
 ROOT = Path(__file__).resolve().parent.parent

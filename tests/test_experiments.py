@@ -57,3 +57,17 @@ def test_trials_split_into_groups_give_the_same_results_as_one_batch():
     for a, b in zip(whole, groups):
         assert a.equations[0].adjustments == b.equations[0].adjustments
         assert a.equations[0].exponents == pytest.approx(b.equations[0].exponents, abs=1e-9)
+
+
+@pytest.mark.parametrize("script", sorted(p.stem for p in (ROOT / "experiments").glob("*.py")))
+def test_every_experiment_script_imports(script, monkeypatch):
+    """Each script's imports resolve against the package as it is (a renamed module breaks the
+    long benchmarks only when they run, outside the suite); `__main__` blocks do not run."""
+    import importlib.util
+
+    monkeypatch.syspath_prepend(str(ROOT / "experiments"))
+    spec = importlib.util.spec_from_file_location(f"experiments_{script}", ROOT / "experiments" / f"{script}.py")
+    module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, module)  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    assert module.__doc__, f"experiments/{script}.py has no docstring saying what it measures"
