@@ -10,6 +10,7 @@ import torch
 from .candidates import EquationData, equation_choices
 from .config import Config, load_config
 from .data import DataArgument, resolve_datasets
+from .estimation import choose
 from .plan import Plan, make_trainer, prepare, records_measured
 from .result import EquationResult, RunResult, format_component, format_equation
 from .simulation.adapt import adapt_simulation
@@ -17,6 +18,7 @@ from .spec import Equation, ModelSpec
 from .systems import perturb_parameters
 from .trainer import Algebraic, Fit, Trainer
 from .tuning import Tuned, measure_model, relative_error, tune_adapted, tune_start
+from .weak import TestFunctions, weak_data
 
 
 def nominal_parameters(config: Config, spec: ModelSpec) -> dict:
@@ -56,30 +58,40 @@ def adapt(config: Config | dict | str, overrides: list[str] = (),
     parameters = nominal_parameters(config, spec)
     results = []
     held_signals = None if held_out is None else {k: v.to(device) for k, v in held_out.signals.items()}
+    tests = None
+    if config.adaptation.form == "weak":  # the record's band sets the test functions and the smoothing
+        estimation = choose(spec, config.data, train, None, plan.derivatives)
+        signals = {k: v.to(device) for k, v in estimation.train.items()}
+        tests = TestFunctions.spanning(signals["t"], estimation.half_width)
+        provenance = {**provenance, "weak_form": {"half_width": estimation.half_width, **estimation.info}}
     for equation in spec.equations:
         theta = spec.theta(equation, parameters).to(device=device, dtype=dtype)
         trainer = (trainer_factory or make_trainer)(plan)
         if on_trainer is not None:
             on_trainer(trainer, equation)
-        results += adapt_equation(config, equation, signals, theta, trainer, held_signals)
+        results += adapt_equation(config, equation, signals, theta, trainer, held_signals, tests)
     provenance = {**provenance, "nominal_parameters": parameters}
     return RunResult(results, config.model_dump(mode="json"), provenance)
 
 
 def adapt_equation(config: Config, equation: Equation, signals: dict, theta: torch.Tensor,
-                   trainer: Trainer | None = None, held_out: dict | None = None) -> list[EquationResult]:
+                   trainer: Trainer | None = None, held_out: dict | None = None,
+                   tests: TestFunctions | None = None) -> list[EquationResult]:
     """Algorithm 1 on one state equation for a batch of T trials at once.
 
     ``signals``: name -> (N,) or (T, N); ``theta``: nominal theta of every component, (K,) or
     (T, K). Theta is re-estimated for the starting model (used as the start when
-    ``adaptation.tune_theta``) and for the adapted model; ``held_out`` signals (N,) are scored too.
+    ``adaptation.tune_theta``) and for the adapted model; ``held_out`` signals (N,) are scored too
+    (one step ahead, Eq. 6). With ``tests`` the rows are Eq. 6 in weak form (:mod:`msam_torch.weak`)
+    on the weak form's ``signals`` (:func:`~msam_torch.estimation.choose`).
     Returns one :class:`EquationResult` per trial."""
     a = config.adaptation
     theta = theta if theta.dim() == 2 else theta.unsqueeze(0)
     trials = max([theta.shape[0]] + [v.shape[0] for v in signals.values() if v.dim() == 2])
     signals = {k: v.expand(trials, v.shape[-1]) for k, v in signals.items()}
     theta = theta.expand(trials, -1)
-    data = EquationData.build(equation, signals, a.normalize)
+    data = (EquationData.build(equation, signals, a.normalize) if tests is None
+            else weak_data(equation, signals, tests, normalize=a.normalize))
     theta_adjustable = theta[:, list(equation.adjustable)] * data.theta_scale
     theta_fixed = theta[:, list(equation.fixed)]
     tuned_start = tune_start(data, theta_fixed, a.hold_fixed)

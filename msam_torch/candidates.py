@@ -66,6 +66,11 @@ class EquationData:
             return torch.ones_like(self.components[:, 0])
         return self.component_scale
 
+    @property
+    def unadjusted(self) -> torch.Tensor:
+        """The adjustable components without adjustment (T, N, Q), mapped by ``project`` when set."""
+        return self.components if self.project is None else self.project(self.components.unsqueeze(1)).squeeze(1)
+
     def expand_trials(self, trials: int) -> "EquationData":
         """The same data viewed ``trials`` times along the leading axis (no copy)."""
         grow = lambda v: v.expand(trials, *v.shape[1:]) if torch.is_tensor(v) else v

@@ -202,8 +202,12 @@ class AdaptationConfig(_Section):
         "eq20", description="mu by Eq. 20, mu = 1, or backtracking (msam_torch.step_rules.STEP_SIZES, or a rule object)")
     theta: ThetaRule = Field(ThetaRule.FIXED, description="nominal theta, or re-solved each step (variable projection)")
     normalize: Literal["none", "rms"] = Field("none", description="divide each adjustment function by its RMS")
+    form: Literal["strong", "weak"] = Field(
+        "strong", description="Eq. 6 on estimated derivatives (strong), or integrated against test functions of the "
+                              "record's band (weak: no derivative of the target is estimated, and both sides are "
+                              "filtered alike)")
     preset: str = Field("auto", description="settings for the keys not given (msam_torch.plan.PRESETS): 'measured' "
-                        "(butterworth derivatives, rms, varpro), 'paper' (the literal step), 'auto': measured for files and tables")
+                        "(butterworth derivatives, rms, varpro, weak form), 'paper' (the literal step), 'auto': measured for files and tables")
     tune_theta: bool = Field(False, description="start from theta re-estimated by least squares on the starting model")
     hold_fixed: bool = Field(False, description="theta re-estimation keeps the fixed components' theta at nominal")
     damping: float = Field(0.0, ge=0, description="Levenberg-Marquardt damping of the step")

@@ -170,6 +170,6 @@ def _map_state(fn, *states: State) -> State:
 
 def starting_measures(data: EquationData, theta: torch.Tensor, theta_fixed: torch.Tensor) -> dict:
     """Measures of the unadjusted starting model with nominal theta (docs/design.md 2.5)."""
-    yhat = data.components @ theta.unsqueeze(-1)
+    yhat = data.unadjusted @ theta.unsqueeze(-1)
     yhat = yhat.squeeze(-1) + (data.fixed_components @ theta_fixed.unsqueeze(-1)).squeeze(-1)
     return measures(data.y, yhat)

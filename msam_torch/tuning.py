@@ -45,7 +45,7 @@ def solve(y: torch.Tensor, cols: torch.Tensor, fixed: torch.Tensor, theta_fixed:
 
 def tune_start(data: EquationData, theta_fixed: torch.Tensor, hold_fixed: bool = False) -> Tuned:
     """The parameter-tuned starting model (no adjustment, Eq. 2)."""
-    return solve(data.y, data.components, data.fixed_components, theta_fixed, hold_fixed)
+    return solve(data.y, data.unadjusted, data.fixed_components, theta_fixed, hold_fixed)
 
 
 def tune_adapted(data: EquationData, choice: torch.Tensor, gamma: torch.Tensor, theta_fixed: torch.Tensor,
@@ -62,7 +62,7 @@ def measure_model(data: EquationData, choice: torch.Tensor | None, gamma: torch.
     """Measures of a model on ``data`` (e.g. held-out samples): the starting model when ``choice``
     is None, else ``choice`` (T, Q) at ``gamma`` (T, Q); theta (T, Q), theta_fixed (T, P)."""
     if choice is None:
-        cols = data.components
+        cols = data.unadjusted
     else:
         cols = columns(data.select(choice.unsqueeze(1)), gamma.unsqueeze(1))[:, 0]
     fixed = data.fixed_components.expand(cols.shape[:-1] + data.fixed_components.shape[-1:])

@@ -13,7 +13,7 @@ from msam_torch.config import DataConfig, load_config
 from msam_torch.data import build_dataset
 from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
 from msam_torch.diagnose.catalogue import NOT_CATALOGUED, name_effect
-from msam_torch.diagnose.weak import TestFunctions as Bumps
+from msam_torch.weak import TestFunctions as Bumps
 from msam_torch.simulation import EquationModel, simulate_equations as simulate
 from msam_torch.spec import ModelSpec
 from msam_torch.systems import SYSTEMS, WITHHELD, measure as simulate_true

@@ -14,7 +14,7 @@ from msam_torch.bandwidth import band_edge
 from msam_torch.cli import main
 from msam_torch.derivatives import BAND
 from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
-from msam_torch.diagnose.estimation import HALF_AMPLITUDE
+from msam_torch.weak import HALF_AMPLITUDE
 from msam_torch.diagnose.verdict import equation_verdict, free_run_reasons
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))

@@ -25,7 +25,7 @@ from ..trainer import Algebraic
 from .adapted import with_effects
 from .compare import check_solver, compare
 from .equation import diagnose_equation
-from .estimation import choose
+from ..estimation import choose
 from .multi import in_turn
 from .options import DiagnoseOptions
 from .report import GapReport

@@ -17,7 +17,7 @@ from ..step import StepOptions
 from . import catalogue, confidence
 from .bootstrap import bootstrap
 from .compare import models
-from .estimation import Estimation
+from ..estimation import Estimation
 from .hypotheses import (Fitted, Hypothesis, encode, enumerate_hypotheses, exponent, extended_equation, fit,
                          fitted_text, heldout_rmse)
 from .intervals import term_intervals
@@ -27,7 +27,8 @@ from .options import DiagnoseOptions
 from .report import EquationGap
 from .structure import residual_checks, structure_left
 from .verdict import Verdict, equation_verdict
-from .weak import WeakForm, target_source
+from ..weak import target_source
+from .weak import WeakForm
 
 
 @dataclass(frozen=True)

@@ -4,19 +4,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..errors import ConfigError
+from ..estimation import SAMPLES
 
 
 @dataclass(frozen=True)
 class DiagnoseOptions:
     """Options of :func:`msam_torch.diagnose.diagnose` (defaults are the documented method)."""
 
-    half_width: float | None = None  # test-function half-width in time units (default: from the band, .estimation)
+    half_width: float | None = None  # test-function half-width in time units (default: from the band, msam_torch.estimation)
     steps: int = 30  # damped variable-projection steps per hypothesis
     damping: float = 1e-3  # Levenberg-Marquardt damping of the exponent steps
     bootstrap: int = 16  # bootstrap trials (time blocks and noise), run as one batch
     bootstrap_steps: int = 8  # steps per bootstrap trial, warm-started at the original fit
     bootstrap_hypotheses: int = 5  # the best effect hypotheses (and the re-fitted start) re-fitted per trial
-    quadrature_samples: int = 1000  # records are low-pass filtered and decimated to about this many samples
+    quadrature_samples: int = SAMPLES  # records are low-pass filtered and decimated to about this many samples
     blocks: int = 10  # time blocks for the bootstrap and, without held-out data, the held-out split
     relative: float = 0.05  # null rule: held-out RMSE at least 5 % below the re-fitted starting model
     absolute: float = 0.002  # ... and by 0.2 % of the held-out target's RMS

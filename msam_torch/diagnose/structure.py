@@ -14,7 +14,8 @@ from statsmodels.stats.diagnostic import acorr_ljungbox
 
 from ..spec import Equation
 from .hypotheses import Fitted, predict_rows
-from .weak import TestFunctions, WeakForm
+from ..weak import TestFunctions
+from .weak import WeakForm
 
 NEIGHBOURS = 10
 LAGS = 10  # autocorrelation and input cross-correlation lags, at most

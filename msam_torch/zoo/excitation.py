@@ -40,10 +40,12 @@ def prbs(rng: np.random.Generator, t: np.ndarray, band: float) -> np.ndarray:
     return 2.0 * sequence[index] - 1.0
 
 
-def draw(rng: np.random.Generator, t: np.ndarray, sample_rate: float, kind: str | None = None) -> tuple[np.ndarray, dict]:
-    """A random excitation on grid ``t`` (max |e| = 1) and its description."""
+def draw(rng: np.random.Generator, t: np.ndarray, sample_rate: float, kind: str | None = None,
+         fraction: float | None = None) -> tuple[np.ndarray, dict]:
+    """A random excitation on grid ``t`` (max |e| = 1) and its description; ``fraction``: its band
+    as a share of the sampling rate (default drawn)."""
     kind = kind or str(rng.choice(KINDS))
-    fraction = float(np.exp(rng.uniform(np.log(0.01), np.log(0.2))))
+    fraction = fraction or float(np.exp(rng.uniform(np.log(0.01), np.log(0.2))))
     e = {"multisine": multisine, "steps": steps, "prbs": prbs}[kind](rng, t, fraction * sample_rate)
     e = e - (0.0 if kind == "prbs" else e.mean())
     return e / np.abs(e).max(), {"kind": kind, "band_fraction_of_sample_rate": fraction}

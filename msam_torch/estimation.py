@@ -1,5 +1,6 @@
 """Estimation chosen from the record (docs/design.md section 3b): the band the signals occupy, the
-test-function half-width and quadrature rate it implies, and the weak form's signals.
+test-function half-width and quadrature rate it implies, and the weak form's signals (for the
+diagnosis, and for ``adapt`` with ``adaptation.form: weak``).
 
 The weak form integrates the measured signals themselves; a derivative the data do not hold
 (``x_dot`` with only ``x`` measured) is estimated with a smoother whose cut-off lies above the
@@ -12,23 +13,34 @@ faster than the band are low-pass filtered and decimated (:func:`~msam_torch.ban
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Mapping
 
 import numpy as np
 import torch
 
-from ..bandwidth import band_edge, decimate
-from ..config import DataConfig
-from ..data import Dataset, build_dataset
-from ..derivatives import DerivativeEstimator, InBand
-from ..errors import DataError
-from ..spec import ModelSpec
+from .bandwidth import band_edge, decimate
+from .config import DataConfig
+from .data import Dataset, build_dataset
+from .derivatives import DerivativeEstimator, InBand
+from .errors import DataError
+from .spec import ModelSpec
+from .weak import half_width_for
 
-HALF_AMPLITUDE = 0.6  # f h at which the bump (1 - s^2)^4 of half-width h passes half the amplitude
 SAMPLES_PER_PERIOD = 7  # decimation keeps the band edge below 1/7 of the sampling rate
 DERIVATIVE_MARGIN = 2.0  # a derivative's smoother passes twice the band edge
-SHORTEST = 4  # samples in a test function's half-width, at least
 QUADRATURE = 16  # decimation keeps at least this many samples in a half-width
-WIDEST = 0.1  # of the record: a test function's half-width, at most
+
+
+SAMPLES = 1000  # records are low-pass filtered and decimated to about this many samples
+
+
+def record_band(measured: Mapping[str, np.ndarray], inputs) -> tuple[float, dict]:
+    """The band edge (cycles per sample, :func:`~msam_torch.bandwidth.band_edge`) of a record: the
+    highest over its varying measured states, what the inputs excited in the system (over the
+    inputs too when no state varies); and each varying signal's."""
+    edges = {k: band_edge(v) for k, v in measured.items() if k != "t" and np.ptp(v) > 0}
+    states = [edge for k, edge in edges.items() if k not in inputs]
+    return max(states or edges.values(), default=0.5), edges
 
 
 @dataclass(frozen=True)
@@ -69,19 +81,15 @@ def _signals(measured: dict, every: int, band: float, data: DataConfig, spec: Mo
 
 
 def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset | None,
-           estimator: DerivativeEstimator, half_width: float | None, samples: int) -> Estimation:
+           estimator: DerivativeEstimator, half_width: float | None = None, samples: int = SAMPLES) -> Estimation:
     """The band of ``train``'s measured states and inputs, the half-width (``half_width`` when
     given) and decimation it implies, and both records' weak-form signals on the training device."""
     measured = _measured(train)
     t = measured["t"]
     dt = float(t[1] - t[0])
-    edges = {k: band_edge(measured[k]) for k in measured if k != "t" and np.ptp(measured[k]) > 0}
-    states = [edges[k] for k in edges if k not in spec.inputs]
-    band = max(states or edges.values(), default=0.5)  # cycles per sample
+    band, edges = record_band(measured, spec.inputs)  # cycles per sample
     rule = "given" if half_width else f"band edge {band / dt:.4g} cycles per time unit"
-    half_width = half_width or HALF_AMPLITUDE / (band / dt)
-    record = float(t[-1] - t[0])
-    half_width = min(max(half_width, SHORTEST * dt), WIDEST * record)
+    half_width = half_width_for(band / dt, t, half_width)
     every = max(1, min(t.size // samples, int(1 / (SAMPLES_PER_PERIOD * band)), int(half_width / (QUADRATURE * dt))))
     exact = not train.measured
     device, dtype = train.t.device, train.t.dtype
