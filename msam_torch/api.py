@@ -60,7 +60,7 @@ def adapt(config: Config | dict | str, overrides: list[str] = (),
     held_signals = None if held_out is None else {k: v.to(device) for k, v in held_out.signals.items()}
     tests = None
     if config.adaptation.form == "weak":  # the record's band sets the test functions and the smoothing
-        estimation = choose(spec, config.data, train, None, plan.derivatives)
+        estimation = choose(spec, config.data, train, None, plan.derivatives, regressors=True)
         signals = {k: v.to(device) for k, v in estimation.train.items()}
         tests = TestFunctions.spanning(signals["t"], estimation.half_width)
         provenance = {**provenance, "weak_form": {"half_width": estimation.half_width, **estimation.info}}

@@ -43,6 +43,16 @@ def record_band(measured: Mapping[str, np.ndarray], inputs) -> tuple[float, dict
     return max(states or edges.values(), default=0.5), edges
 
 
+def regressor_band(spec: ModelSpec, dataset: Dataset) -> tuple[float, dict]:
+    """The band edge (cycles per sample) of the signals the equations' regressors read: the
+    highest over the states and their derivatives as estimated in ``dataset`` (neither inputs nor
+    targets), so that test functions pass where the adjustment functions vary (a velocity's
+    reversals, not only the position's slow swing); and each one's."""
+    targets = {equation.target for equation in spec.equations}
+    read = {k: v.detach().cpu().numpy() for k, v in dataset.signals.items() if k not in targets | set(spec.inputs)}
+    return record_band(read, ())
+
+
 @dataclass(frozen=True)
 class Estimation:
     """The weak form's signals (training and held out), its test-function half-width (time units)
@@ -81,13 +91,15 @@ def _signals(measured: dict, every: int, band: float, data: DataConfig, spec: Mo
 
 
 def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset | None,
-           estimator: DerivativeEstimator, half_width: float | None = None, samples: int = SAMPLES) -> Estimation:
-    """The band of ``train``'s measured states and inputs, the half-width (``half_width`` when
+           estimator: DerivativeEstimator, half_width: float | None = None, samples: int = SAMPLES,
+           regressors: bool = False) -> Estimation:
+    """The band of ``train``'s measured states (:func:`record_band`; with ``regressors``: of the
+    signals the regressors read, :func:`regressor_band`), the half-width (``half_width`` when
     given) and decimation it implies, and both records' weak-form signals on the training device."""
     measured = _measured(train)
     t = measured["t"]
     dt = float(t[1] - t[0])
-    band, edges = record_band(measured, spec.inputs)  # cycles per sample
+    band, edges = regressor_band(spec, train) if regressors else record_band(measured, spec.inputs)  # per sample
     rule = "given" if half_width else f"band edge {band / dt:.4g} cycles per time unit"
     half_width = half_width_for(band / dt, t, half_width)
     every = max(1, min(t.size // samples, int(1 / (SAMPLES_PER_PERIOD * band)), int(half_width / (QUADRATURE * dt))))
