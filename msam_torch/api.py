@@ -9,8 +9,8 @@ import torch
 
 from .candidates import EquationData, equation_choices
 from .config import Config, load_config
-from .data import DataArgument, resolve_datasets
-from .estimation import choose
+from .data import DataArgument, Dataset, resolve_datasets
+from .estimation import Estimation, choose
 from .plan import Plan, make_trainer, prepare, records_measured
 from .result import EquationResult, RunResult, format_component, format_equation
 from .simulation.adapt import adapt_simulation
@@ -18,7 +18,8 @@ from .spec import Equation, ModelSpec
 from .systems import perturb_parameters
 from .trainer import Algebraic, Fit, Trainer
 from .tuning import Tuned, measure_model, relative_error, tune_adapted, tune_start
-from .weak import TestFunctions, weak_data
+from .progress import LOGGER
+from .weak import TestFunctions, resolves, weak_data
 
 
 def nominal_parameters(config: Config, spec: ModelSpec) -> dict:
@@ -58,12 +59,12 @@ def adapt(config: Config | dict | str, overrides: list[str] = (),
     parameters = nominal_parameters(config, spec)
     results = []
     held_signals = None if held_out is None else {k: v.to(device) for k, v in held_out.signals.items()}
-    tests = None
-    if config.adaptation.form == "weak":  # the record's band sets the test functions and the smoothing
-        estimation = choose(spec, config.data, train, None, plan.derivatives, regressors=True)
+    tests, estimation = None, weak_estimation(plan, train)
+    if estimation is not None:  # the regressors' band sets the test functions and the smoothing
         signals = {k: v.to(device) for k, v in estimation.train.items()}
         tests = TestFunctions.spanning(signals["t"], estimation.half_width)
         provenance = {**provenance, "weak_form": {"half_width": estimation.half_width, **estimation.info}}
+    provenance = {**provenance, "form": "strong" if tests is None else "weak"}
     for equation in spec.equations:
         theta = spec.theta(equation, parameters).to(device=device, dtype=dtype)
         trainer = (trainer_factory or make_trainer)(plan)
@@ -72,6 +73,21 @@ def adapt(config: Config | dict | str, overrides: list[str] = (),
         results += adapt_equation(config, equation, signals, theta, trainer, held_signals, tests)
     provenance = {**provenance, "nominal_parameters": parameters}
     return RunResult(results, config.model_dump(mode="json"), provenance)
+
+
+def weak_estimation(plan: Plan, train: Dataset) -> Estimation | None:
+    """The weak form's signals and test functions for ``adaptation.form`` (None: Eq. 6 on estimated
+    derivatives); ``auto`` takes the weak form where test functions of a few samples
+    (:func:`~msam_torch.weak.resolves`) pass the band of the signals the regressors read."""
+    form = plan.config.adaptation.form
+    if form == "strong":
+        return None
+    estimation = choose(plan.spec, plan.config.data, train, None, plan.derivatives, regressors=True)
+    if form == "auto" and not resolves(estimation.info["band_edge"] * float(train.t[1] - train.t[0])):
+        LOGGER.info("Eq. 6 on estimated derivatives: the regressors' band, %.4g cycles per time unit, is too close to "
+                    "the sampling rate for test functions of a few samples", estimation.info["band_edge"])
+        return None
+    return estimation
 
 
 def adapt_equation(config: Config, equation: Equation, signals: dict, theta: torch.Tensor,

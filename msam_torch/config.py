@@ -202,10 +202,10 @@ class AdaptationConfig(_Section):
         "eq20", description="mu by Eq. 20, mu = 1, or backtracking (msam_torch.step_rules.STEP_SIZES, or a rule object)")
     theta: ThetaRule = Field(ThetaRule.FIXED, description="nominal theta, or re-solved each step (variable projection)")
     normalize: Literal["none", "rms"] = Field("none", description="divide each adjustment function by its RMS")
-    form: Literal["strong", "weak"] = Field(
+    form: Literal["strong", "weak", "auto"] = Field(
         "strong", description="Eq. 6 on estimated derivatives (strong), or integrated against test functions of the "
-                              "record's band (weak: no derivative of the target is estimated, and both sides are "
-                              "filtered alike)")
+                              "regressors' band (weak: no derivative of the target is estimated, and both sides are "
+                              "filtered alike); auto: weak where the sampling resolves that band")
     preset: str = Field("auto", description="settings for the keys not given (msam_torch.plan.PRESETS): 'measured' "
                         "(butterworth derivatives, rms, varpro, weak form), 'paper' (the literal step), 'auto': measured for files and tables")
     tune_theta: bool = Field(False, description="start from theta re-estimated by least squares on the starting model")

@@ -13,12 +13,13 @@ From Python, a strategy object serves as well as its name, in the config (``{"da
 
 Measured data get safe settings (``adaptation.preset``, :data:`PRESETS`): where ``adapt`` reads
 a file or a table rather than a simulation (:func:`records_measured`), the keys the config does
-not give are filled from the ``measured`` preset: Eq. 6 in weak form (``adaptation.form: weak``,
-:mod:`msam_torch.weak`: the target integrated by parts against test functions of the record's
-band, every regressor filtered by the same kernel, so a non-linearity's harmonics are filtered
-from both sides alike), derivatives the regressors need through a zero-phase Butterworth filter
-above that band (:mod:`msam_torch.estimation`), every adjustment function normalised by its RMS
-(units, design.md 2.7) and theta re-solved at every step (variable projection, Eq. 17-18), so the
+not give are filled from the ``measured`` preset: Eq. 6 in weak form where the sampling resolves
+the band of the signals the regressors read (``adaptation.form: auto``, :mod:`msam_torch.weak`:
+the target integrated by parts against test functions of that band, every regressor filtered by
+the same kernel, so a non-linearity's harmonics are filtered from both sides alike; derivatives
+the regressors need through a zero-phase Butterworth filter above that band,
+:mod:`msam_torch.estimation`), else on Butterworth derivatives at the noise floor; every
+adjustment function normalised by its RMS (units, design.md 2.7); and theta re-solved at every step (variable projection, Eq. 17-18), so the
 result does not hinge on the nominal theta. ``preset: paper`` keeps the literal step. The
 diagnosis always uses the weak form and its band-limited estimation; it is prepared without a
 preset.
@@ -44,7 +45,7 @@ SECTIONS = {"derivatives": "data", "evaluation": "adaptation", "step_size": "ada
 PRESETS = {  # preset -> {(section, key): value} for the keys a config does not give
     "paper": {},
     "measured": {("data", "derivatives"): "butterworth", ("adaptation", "normalize"): "rms",
-                 ("adaptation", "theta"): "varpro", ("adaptation", "form"): "weak"},
+                 ("adaptation", "theta"): "varpro", ("adaptation", "form"): "auto"},
 }
 
 

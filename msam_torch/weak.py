@@ -132,3 +132,9 @@ def half_width_for(band: float, t, given: float | None = None) -> float:
     dt, record = float(t[1] - t[0]), float(t[-1] - t[0])
     return min(max(given or HALF_AMPLITUDE / band, SHORTEST * dt), WIDEST * record)
 
+
+
+def resolves(band: float) -> bool:
+    """Whether test functions of :data:`SHORTEST` samples or more pass ``band`` (cycles per sample)
+    at half amplitude: whether the record is sampled finely enough for the weak form's quadrature."""
+    return HALF_AMPLITUDE / band >= SHORTEST

@@ -59,7 +59,7 @@ def test_adapt_and_diagnose_agree_on_quadratic_drag_with_defaults():
     (equation,) = result.equations
     assert result.config["adaptation"]["preset"] == "measured"
     assert result.config["data"]["derivatives"] == "butterworth" and result.config["adaptation"]["theta"] == "varpro"
-    assert result.config["adaptation"]["form"] == "weak"
+    assert result.config["adaptation"]["form"] == "auto" and result.data["form"] == "weak"
     assert equation.adjustments[0] == "abs(x_dot)" and equation.exponents[0] == pytest.approx(1.0, abs=0.05)
     assert abs(equation.exponents[1]) < 0.02  # x keeps its linear spring
     report = diagnose(CONFIG, data=record(), options=DiagnoseOptions(bootstrap=8, free_run=False))
@@ -112,7 +112,7 @@ def test_the_preset_fills_only_keys_not_given_and_only_for_measured_records():
     given = load_config(CONFIG, ["adaptation.theta=fixed"])
     plan = prepare(given, in_memory=True, measured=True)
     assert plan.config.adaptation.theta == "fixed" and plan.config.adaptation.normalize == "rms"
-    assert plan.config.adaptation.form == "weak"
+    assert plan.config.adaptation.form == "auto"
     assert plan.derivatives.name == "butterworth"
     with pytest.raises(ConfigError, match="^adaptation.preset: unknown preset 'fast'"):
         prepare(load_config(CONFIG, ["adaptation.preset=fast"]), measured=True)
