@@ -2,7 +2,9 @@
 (mass-spring-damper with Coulomb friction withheld, position and force measured, 1 % noise) on
 a 2,000-sample record, on records 10x (and ``--longer``) longer at the same sampling period, and
 on one sampled 10x faster over the same time; each run's wall time, its ratio to the 2,000-sample
-run's, the verdict, the exponent and the test-function half-width chosen.
+run's, the verdict, the exponent with its 90 % bootstrap interval, the test-function half-width and
+the derivative window chosen, and whether the record gives the 1x verdict with an exponent inside
+the 1x record's interval.
 
     PYTHONPATH=. python experiments/bench_diagnose.py [--threads 1] [--longer 10 50] [--repeats 3]
 
@@ -51,9 +53,21 @@ def run(length: float, faster: int, repeats: int) -> dict:
     config = {"model": w.model, "data": {"parametric_error": 0.2, "seed": 1}}
     reports = [diagnose(config, data=train, validation=held_out) for _ in range(repeats)]
     g = reports[0].equations[0]
+    interval = next((term["exponent_interval"] for term in g.intervals if term["exponent_interval"]), None)
+    windows = [d.get("window") for d in g.estimator["derivatives"].values()] \
+        if isinstance(g.estimator["derivatives"], dict) else []
     return {"samples": int(train.t.numel()), "seconds": statistics.median(r.seconds for r in reports),
-            "verdict": reports[0].verdict, "exponent": g.exponent, "half_width": g.estimator["half_width"],
-            "decimation": g.estimator["decimation"]}
+            "verdict": reports[0].verdict, "exponent": g.exponent, "interval": interval,
+            "half_width": g.estimator["half_width"], "decimation": g.estimator["decimation"],
+            "window": ", ".join(str(w) for w in windows if w) or "-"}
+
+
+def agrees(row: dict, base: dict) -> bool:
+    """Same verdict as ``base``, and an exponent inside ``base``'s interval (or neither has one)."""
+    if row["exponent"] is None or base["interval"] is None:
+        return row["verdict"] == base["verdict"] and row["exponent"] is None and base["exponent"] is None
+    low, high = base["interval"]
+    return row["verdict"] == base["verdict"] and low <= row["exponent"] <= high
 
 
 def main() -> None:
@@ -68,12 +82,15 @@ def main() -> None:
     rows.append(("10x faster sampling", run(1.0, 10, args.repeats)))
     base = rows[0][1]["seconds"]
     print(f"{CASE}, {100 * NOISE:g} % noise, {args.threads} torch threads, median of {args.repeats} runs")
-    print("| record | samples | diagnosis s | ratio to 1x | verdict | exponent | half-width | decimation |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| record | samples | diagnosis s | ratio to 1x | verdict | exponent | interval | half-width | decimation "
+          "| derivative window | 1x verdict, exponent in 1x interval |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for label, r in rows:
         exponent = "-" if r["exponent"] is None else f"{r['exponent']:.3f}"
+        interval = "-" if r["interval"] is None else "{:.3f} to {:.3f}".format(*r["interval"])
         print(f"| {label} | {r['samples']} | {r['seconds']:.2f} | {r['seconds'] / base:.2f} | {r['verdict']} | "
-              f"{exponent} | {r['half_width']:.3g} | {r['decimation']} |")
+              f"{exponent} | {interval} | {r['half_width']:.3g} | {r['decimation']} | {r['window']} | "
+              f"{'yes' if agrees(r, rows[0][1]) else 'NO'} |")
 
 
 if __name__ == "__main__":

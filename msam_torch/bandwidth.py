@@ -16,7 +16,7 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 from scipy.signal import firwin, resample_poly
 
-from .derivatives import BAND, noise_level
+from .derivatives import BAND, noise_level, periodogram
 
 POWER_SHARE = 0.99  # share of a signal's power above the noise floor that lies in the band
 RESOLVED = 100  # samples per period of the band edge an oversampled record keeps
@@ -27,17 +27,14 @@ def band_edge(y: np.ndarray) -> float:
     """Frequency (cycles per sample) below which :data:`POWER_SHARE` of the power of ``y`` above
     its white-noise floor lies (detrended, Hann-tapered, band-averaged periodogram; scaled to unit
     peak first, so that no magnitude overflows)."""
-    n, peak = y.size, np.abs(y).max()
+    peak = np.abs(y).max()
     y = y / peak if 0 < peak < np.inf else y
-    index = np.arange(n)
-    detrended = y - np.polyval(np.polyfit(index, y, 1), index)
-    taper = np.hanning(n)
-    power = uniform_filter1d(np.abs(np.fft.rfft(detrended * taper)) ** 2, size=min(BAND, n // 2 + 1), mode="nearest")
-    signal = np.clip(power - noise_level(y) ** 2 * np.sum(taper**2), 0.0, None)
+    freq, power, floor = periodogram(y, noise_level(y))
+    signal = np.clip(uniform_filter1d(power, size=min(BAND, power.size), mode="nearest") - floor, 0.0, None)
     total = np.cumsum(signal)
     if total[-1] <= 0:
         return 0.5
-    return float(np.fft.rfftfreq(n)[np.searchsorted(total, POWER_SHARE * total[-1])])
+    return float(freq[np.searchsorted(total, POWER_SHARE * total[-1])])
 
 
 def decimate(values: np.ndarray, every: int) -> np.ndarray:

@@ -30,13 +30,18 @@ cycles per sample. It does not smooth, so its noise grows like ``omega^k`` up to
 
 Window rule (``savgol`` and ``loess`` when no window is given): the smoother should pass what
 the record holds above its noise and stop where the noise takes over, the cut-off of a Wiener
-filter. :func:`choose_window` finds the lowest frequency at which the signal's power (tapered,
-band-averaged periodogram) falls to the white-noise power set by :func:`noise_level` (``butterworth``
-takes that frequency as its cut-off), and picks the
-window whose cut-off frequency is there (Schafer 2011: ``f_c ~ (p + 1) / (3.2 w - 4.6)`` cycles per
-sample for a local polynomial of degree ``p``). Differentiation multiplies signal and noise alike
-by ``omega^k``, so the same cut-off serves every derivative order. Noise-free records get the
-smallest window; longer or noisier records get wider ones.
+filter. :func:`cutoff_frequency` finds the lowest frequency above the spectrum's peak at which the
+signal's power (tapered periodogram, averaged over the octave around each frequency) falls to the
+white-noise power set by :func:`noise_level` (``butterworth`` takes that frequency as its cut-off),
+and :func:`choose_window` picks the window whose cut-off frequency is there (Schafer 2011:
+``f_c ~ (p + 1) / (3.2 w - 4.6)`` cycles per sample for a local polynomial of degree ``p``).
+The average spans a fixed ratio of frequencies, not a fixed number of bins, so the rule does not
+depend on the record's length: a longer record has finer bins, and a few bins' average would fall to
+the floor in the gaps between a multisine's lines (or below its lowest line), cutting the band off
+at its first line. An octave bridges the gaps of a band's lines and ends up to half an octave past
+its last line. Differentiation multiplies signal and noise alike by ``omega^k``, so the same cut-off
+serves every derivative order. Noise-free records get the smallest windows; noisier records get
+wider ones.
 """
 from __future__ import annotations
 
@@ -54,7 +59,8 @@ LOESS_DEGREE = 1  # statsmodels lowess fits local lines
 BUTTERWORTH_ORDER = 4  # as in inverse-dynamics identification of robots and drives (IDIM-LS)
 HIGHEST_CUTOFF = 0.45  # cycles per sample: a low-pass cut-off must lie below Nyquist (0.5)
 INTERPOLATING_DEGREE = 5  # odd: the quintic interpolating spline
-BAND = 9  # periodogram bins averaged before comparing with the noise floor
+OCTAVE = 2**0.5  # the periodogram is averaged over [f / OCTAVE, f * OCTAVE] before the noise floor is met
+BAND = 9  # and over this many bins at least
 
 
 @dataclass(frozen=True)
@@ -79,21 +85,30 @@ def noise_level(y: np.ndarray) -> float:
     return float(mad / np.sqrt(20.0))
 
 
-def cutoff_frequency(y: np.ndarray, sigma: float) -> float:
-    """Lowest frequency (cycles per sample) where the band-averaged periodogram of the linearly
-    detrended, Hann-tapered signal falls to twice the floor of white noise of std ``sigma``: there
-    the signal's power no longer exceeds the noise's (the Wiener gain falls to 1/2)."""
+def periodogram(y: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Frequencies (cycles per sample), the periodogram of the linearly detrended, Hann-tapered ``y``,
+    and the floor white noise of std ``sigma`` gives it in every bin (``sigma^2 sum(taper^2)``)."""
     n = y.size
     index = np.arange(n)
     detrended = y - np.polyval(np.polyfit(index, y, 1), index)
     taper = np.hanning(n)
-    power = np.abs(np.fft.rfft(detrended * taper)) ** 2
-    from scipy.ndimage import uniform_filter1d
+    return np.fft.rfftfreq(n), np.abs(np.fft.rfft(detrended * taper)) ** 2, sigma**2 * float(np.sum(taper**2))
 
-    band = uniform_filter1d(power, size=min(BAND, power.size), mode="nearest")
-    below = np.flatnonzero(band <= 2.0 * sigma**2 * np.sum(taper**2))  # signal power <= noise power
-    freq = np.fft.rfftfreq(n)
-    return float(freq[below[0]] if below.size else freq[-1])
+
+def cutoff_frequency(y: np.ndarray, sigma: float) -> float:
+    """Lowest frequency (cycles per sample) above the peak of the averaged periodogram where the
+    periodogram of ``y``, averaged over ``[f / OCTAVE, f * OCTAVE]`` (and :data:`BAND` bins at
+    least), falls to twice the floor of white noise of std ``sigma``: there the signal's power no
+    longer exceeds the noise's (the Wiener gain falls to 1/2)."""
+    freq, power, floor = periodogram(y, sigma)
+    k = np.arange(power.size)
+    low = np.maximum(np.minimum(np.floor(k / OCTAVE).astype(int), k - BAND // 2), 0)
+    high = np.minimum(np.maximum(np.ceil(k * OCTAVE).astype(int), k + BAND // 2), power.size - 1)
+    tail = np.append(np.cumsum(power[::-1])[::-1], 0.0)  # sums from the top, where the power is small: exact there
+    band = (tail[low] - tail[high + 1]) / (high + 1 - low)
+    peak = int(np.argmax(band))
+    below = np.flatnonzero(band[peak:] <= 2.0 * floor)  # signal power <= noise power
+    return float(freq[peak + below[0]] if below.size else freq[-1])
 
 
 def choose_window(y: np.ndarray, degree: int) -> tuple[int, float]:

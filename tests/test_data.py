@@ -72,7 +72,7 @@ def test_noise_level_and_window_follow_the_noise():
         if sigma:
             assert noise_level(noisy) == pytest.approx(sigma, rel=0.15)
         windows.append(choose_window(noisy, 3)[0])
-    assert windows == sorted(set(windows)) and windows[0] == 5 and windows[-1] > 2 * windows[1], windows
+    assert windows == sorted(set(windows)) and windows[0] <= 7 and windows[-1] > 2 * windows[1], windows
 
 
 def test_window_rule_beats_fixed_windows_on_the_oscillator():
