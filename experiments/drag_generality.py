@@ -1,6 +1,6 @@
 """Issue 17, acceptance 2 beyond the one oscillator: ``adapt`` and ``diagnose`` with defaults on a
 DataFrame of a drawn oscillator whose damping is ``c x_dot |x_dot|^g`` (the starting model's is
-linear), position and force measured with 0.5 % noise.
+linear), position and force measured with 0.5 % noise (``--noise``).
 
 Each seed draws the natural frequency (10^-1.5 .. 10^2.5 rad per time unit), the mass and the
 displacement's unit (10^-3 .. 10^3), the equivalent damping ratio (0.05 .. 0.5), the sampling
@@ -31,7 +31,7 @@ from msam_torch.zoo.excitation import draw as draw_excitation
 NOISE = 0.005
 
 
-def draw(seed: int, family: str) -> dict:
+def draw(seed: int, family: str, noise: float = NOISE) -> dict:
     """A drawn oscillator ``m x'' = -c x'|x'|^g - k x + u``: its true exponent, the starting-model
     config (linear damping at the equivalent ratio) and training and held-out frames."""
     rng = np.random.default_rng(seed)
@@ -54,7 +54,7 @@ def draw(seed: int, family: str) -> dict:
         force = k * unit * u
         rhs = lambda time, s: [s[1], (-c * s[1] * abs(s[1]) ** g - k * s[0] + np.interp(time, t, force)) / m]
         sol = solve_ivp(rhs, (t[0], t[-1]), [0.0, 0.0], t_eval=t, rtol=1e-9, atol=1e-12 * unit, max_step=dt)
-        x = sol.y[0] + NOISE * sol.y[0].std() * rng.standard_normal(samples)
+        x = sol.y[0] + noise * sol.y[0].std() * rng.standard_normal(samples)
         frames.append(pd.DataFrame({"time": t, "x": x, "u": force}))
         kinds.append(info["kind"])
     model = {"states": ["x", "x_dot"], "inputs": ["u"], "parameters": {"m": m, "c": c_linear, "k": k},
@@ -90,6 +90,7 @@ def main() -> None:
     parser.add_argument("--seeds", nargs=2, type=int, default=(1000, 1100), metavar=("FIRST", "STOP"))
     parser.add_argument("--family", choices=("drag", "power"), default="drag")
     parser.add_argument("--tolerance", type=float, default=0.05)
+    parser.add_argument("--noise", type=float, default=NOISE, help="noise std as a share of the displacement's")
     parser.add_argument("--no-diagnose", action="store_true")
     parser.add_argument("--form", choices=("strong", "weak"), help="adaptation.form for adapt (default: the preset's)")
     args = parser.parse_args()
@@ -97,7 +98,7 @@ def main() -> None:
     count = 0
     print("| seed | g | excitation | w_n | samples/period | adapt | diagnose |\n|---|---|---|---|---|---|---|")
     for seed in range(*args.seeds):
-        case = draw(seed, args.family)
+        case = draw(seed, args.family, args.noise)
         if args.form:
             case["config"]["adaptation"] = {"form": args.form}
         started = time.perf_counter()
@@ -112,7 +113,7 @@ def main() -> None:
         print(f"| {seed} | {case['g']:.3f} | {case['excitation']} | {case['wn']:.3g} | {case['per_period']:.0f} | "
               f"{show(adapted, ok_adapt)} | {show(diagnosed, ok_diagnose)} | <!-- {time.perf_counter() - started:.0f} s -->",
               flush=True)
-    print(f"\nseeds {args.seeds[0]}-{args.seeds[1] - 1}, family {args.family}, tolerance {args.tolerance}: "
+    print(f"\nseeds {args.seeds[0]}-{args.seeds[1] - 1}, family {args.family}, noise {args.noise}, tolerance {args.tolerance}: "
           f"adapt {hits['adapt']}/{count}" + ("" if args.no_diagnose else f", diagnose {hits['diagnose']}/{count}"))
 
 
