@@ -1,15 +1,17 @@
 """Estimation chosen from the record (docs/design.md section 3b): the band the signals occupy, the
 test-function half-width and quadrature rate it implies, and the weak form's signals (for the
-diagnosis, and for ``adapt`` with ``adaptation.form: weak``).
+diagnosis, and for ``adapt`` in the weak form, ``adaptation.form``).
 
 The weak form integrates the measured signals themselves; a derivative the data do not hold
 (``x_dot`` with only ``x`` measured) is estimated with a smoother whose cut-off lies above the
 band (:class:`~msam_torch.derivatives.InBand`). The band edge ``f_b`` is the highest, over the
-measured states (what the inputs excited in the system), of the frequency below which 99 % of a signal's power above its
-white-noise floor lies; the bump test function passes ``f_b`` at half amplitude for the half-width
-``h = 0.6 / f_b`` (time units of the system, not a share of the record). Records sampled far
-faster than the band are low-pass filtered and decimated (:func:`~msam_torch.bandwidth.decimate`) to about
-``quadrature_samples`` samples, never below 7 samples per band period nor 16 per half-width."""
+measured states (what the inputs excited in the system; :func:`record_band`, the diagnosis's rule)
+or over the signals the regressors read (:func:`regressor_band`, ``adapt``'s), of the frequency
+below which 99 % of a signal's power above its white-noise floor lies; the bump test function
+passes ``f_b`` at half amplitude for the half-width ``h = 0.6 / f_b`` (time units of the system,
+not a share of the record). Records sampled far faster than the band are low-pass filtered and
+decimated (:func:`~msam_torch.bandwidth.decimate`) to about :data:`SAMPLES` samples, never below 7
+samples per band period nor 16 per half-width."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -29,8 +31,6 @@ from .weak import half_width_for
 SAMPLES_PER_PERIOD = 7  # decimation keeps the band edge below 1/7 of the sampling rate
 DERIVATIVE_MARGIN = 2.0  # a derivative's smoother passes twice the band edge
 QUADRATURE = 16  # decimation keeps at least this many samples in a half-width
-
-
 SAMPLES = 1000  # records are low-pass filtered and decimated to about this many samples
 
 
