@@ -17,14 +17,13 @@ from . import measures
 from .bootstrap import Bootstrap
 from .confidence import best_effect
 from .hypotheses import Fitted
-from .options import DiagnoseOptions
+from .options import AGREEMENT, DiagnoseOptions
 
 PER_PERIOD = 0.04  # a fixed step starts at most at this share of the band's period
 STEPS = 500  # ... and at most at this share of the record
 CHECK_STEPS = 1000  # the step is checked over this many of its steps from the record's start
 HALVINGS = 2  # a fixed step is halved at most this often (then the runs are marked not converged)
 DIVERGED = 10.0  # a free run this many standard deviations off the measurement (NRMSE) has diverged
-AGREEMENT = 1e-2  # runs at a step and twice it agree within this share of a state's magnitude
 
 
 def models(extended: Equation, equation: Equation, nominal: torch.Tensor, choices: torch.Tensor, original: Fitted,

@@ -6,6 +6,9 @@ from dataclasses import dataclass
 from ..errors import ConfigError
 from ..estimation import SAMPLES
 
+AGREEMENT = 1e-2  # free runs at a step and at twice it agree within this share of a state's magnitude:
+# the resolution to which the diagnosis checks its free runs, and so compares them
+
 
 @dataclass(frozen=True)
 class DiagnoseOptions:

@@ -8,7 +8,7 @@ from __future__ import annotations
 from enum import Enum
 from typing import Sequence
 
-from .options import DiagnoseOptions
+from .options import AGREEMENT, DiagnoseOptions
 
 
 class Verdict(str, Enum):
@@ -53,7 +53,8 @@ def equation_verdict(significant: bool, named: bool, win_frequency: float, struc
 
 def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
     """Why the free runs do not support a verdict of ``kind``: the re-fitted start worse than the
-    nominal model (held-out data, else training), a diverged run the verdict rests on (the
+    nominal model (held-out data, else training) by more than :data:`NO_WORSE` and the resolution
+    the free runs are checked to (:data:`~.options.AGREEMENT`), a diverged run the verdict rests on (the
     re-fitted start always; the adapted model for an explained gap), or runs that did not converge."""
     if not free_run:
         return []
@@ -70,7 +71,7 @@ def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
                        f"{entry['solver']['step']:.3g}")
     if reasons:
         return reasons + [TRY["diverged"]]
-    if "start" not in diverged and nrmse["retuned"] > (1 + NO_WORSE) * nrmse["start"]:
+    if "start" not in diverged and nrmse["retuned"] > (1 + NO_WORSE) * nrmse["start"] + AGREEMENT:
         return [f"the theta re-fitted starting model's free run on {label} data is worse than the nominal model's "
                 f"(NRMSE {nrmse['retuned']:.3g} vs {nrmse['start']:.3g}): the estimation is off", TRY["estimation"]]
     return []
