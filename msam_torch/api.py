@@ -10,15 +10,15 @@ import torch
 from .candidates import EquationData, equation_choices
 from .config import Config, load_config
 from .data import DataArgument, Dataset, resolve_datasets
-from .estimation import Estimation, choose
+from .estimation import Estimation, choose, regressor_band
 from .plan import Plan, make_trainer, prepare, records_measured
+from .progress import LOGGER
 from .result import EquationResult, RunResult, format_component, format_equation
 from .simulation.adapt import adapt_simulation
 from .spec import Equation, ModelSpec
 from .systems import perturb_parameters
 from .trainer import Algebraic, Fit, Trainer
 from .tuning import Tuned, measure_model, relative_error, tune_adapted, tune_start
-from .progress import LOGGER
 from .weak import TestFunctions, resolves, weak_data
 
 
@@ -82,12 +82,12 @@ def weak_estimation(plan: Plan, train: Dataset) -> Estimation | None:
     form = plan.config.adaptation.form
     if form == "strong":
         return None
-    estimation = choose(plan.spec, plan.config.data, train, None, plan.derivatives, regressors=True)
-    if form == "auto" and not resolves(estimation.info["band_edge"] * float(train.t[1] - train.t[0])):
-        LOGGER.info("Eq. 6 on estimated derivatives: the regressors' band, %.4g cycles per time unit, is too close to "
-                    "the sampling rate for test functions of a few samples", estimation.info["band_edge"])
+    band = regressor_band(plan.spec, train)
+    if form == "auto" and not resolves(band[0]):  # decided before the record is re-estimated for the weak form
+        LOGGER.info("Eq. 6 on estimated derivatives: the regressors' band, %.4g cycles per sample, is too close to "
+                    "the sampling rate for test functions of a few samples", band[0])
         return None
-    return estimation
+    return choose(plan.spec, plan.config.data, train, None, plan.derivatives, band=band)
 
 
 def adapt_equation(config: Config, equation: Equation, signals: dict, theta: torch.Tensor,

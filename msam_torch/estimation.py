@@ -92,14 +92,14 @@ def _signals(measured: dict, every: int, band: float, data: DataConfig, spec: Mo
 
 def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset | None,
            estimator: DerivativeEstimator, half_width: float | None = None, samples: int = SAMPLES,
-           regressors: bool = False) -> Estimation:
-    """The band of ``train``'s measured states (:func:`record_band`; with ``regressors``: of the
-    signals the regressors read, :func:`regressor_band`), the half-width (``half_width`` when
-    given) and decimation it implies, and both records' weak-form signals on the training device."""
+           band: tuple[float, dict] | None = None) -> Estimation:
+    """The band of ``train`` (``band`` as :func:`regressor_band` gives it, else that of its
+    measured states, :func:`record_band`), the half-width (``half_width`` when given) and
+    decimation it implies, and both records' weak-form signals on the training device."""
     measured = _measured(train)
     t = measured["t"]
     dt = float(t[1] - t[0])
-    band, edges = regressor_band(spec, train) if regressors else record_band(measured, spec.inputs)  # per sample
+    band, edges = band or record_band(measured, spec.inputs)  # cycles per sample
     rule = "given" if half_width else f"band edge {band / dt:.4g} cycles per time unit"
     half_width = half_width_for(band / dt, t, half_width)
     every = max(1, min(t.size // samples, int(1 / (SAMPLES_PER_PERIOD * band)), int(half_width / (QUADRATURE * dt))))

@@ -10,7 +10,8 @@ exponents; the weak form filters both sides alike. The test functions are bumps
 ``phi(s) = (1 - s^2)^p``, ``s = (t - c_m)/h``, centred every ``stride`` samples on a uniform grid;
 their half-width comes from the band the record occupies (:func:`half_width_for`: time units of
 the system, not a share of the record; :mod:`msam_torch.estimation` prepares the signals). ``adapt``
-uses the form with ``adaptation.form: weak`` (the measured-data preset), the diagnosis always.
+uses the form with ``adaptation.form: weak``, and with ``auto`` (the measured-data preset's) where
+:func:`resolves` holds; the diagnosis always.
 """
 from __future__ import annotations
 
@@ -131,7 +132,6 @@ def half_width_for(band: float, t, given: float | None = None) -> float:
     record ``t``."""
     dt, record = float(t[1] - t[0]), float(t[-1] - t[0])
     return min(max(given or HALF_AMPLITUDE / band, SHORTEST * dt), WIDEST * record)
-
 
 
 def resolves(band: float) -> bool:
