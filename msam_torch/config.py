@@ -207,7 +207,7 @@ class AdaptationConfig(_Section):
                               "regressors' band (weak: no derivative of the target is estimated, and both sides are "
                               "filtered alike); auto: weak where the sampling resolves that band")
     preset: str = Field("auto", description="settings for the keys not given (msam_torch.plan.PRESETS): 'measured' "
-                        "(butterworth derivatives, rms, varpro, weak form), 'paper' (the literal step), 'auto': measured for files and tables")
+                        "(butterworth derivatives, rms, varpro, form auto), 'paper' (the literal step), 'auto': measured for files and tables")
     tune_theta: bool = Field(False, description="start from theta re-estimated by least squares on the starting model")
     hold_fixed: bool = Field(False, description="theta re-estimation keeps the fixed components' theta at nominal")
     damping: float = Field(0.0, ge=0, description="Levenberg-Marquardt damping of the step")
