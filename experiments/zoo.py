@@ -48,6 +48,16 @@ def run_diagnosis(config: Path, train: Path, validation: Path):
     return diagnose(config, data=train, validation=validation)
 
 
+def _naming(gap) -> dict | None:
+    """What a flagged equation's name rests on: total exponent, its bootstrap half-width, the
+    catalogue's exponent and the bootstrap trials' outcomes."""
+    if gap.naming is None:
+        return None
+    keys = ("total_exponent", "half_width", "catalogue_exponent")
+    return {**{k: gap.naming.get(k) for k in keys}, "win_frequency": gap.confidence.get("win_frequency"),
+            "outcomes": gap.confidence.get("outcomes")}
+
+
 class Timeout(Exception):
     pass
 
@@ -73,7 +83,8 @@ def run_case(seed: int, args) -> dict:
             row["diagnose_s"] = time.perf_counter() - started
             row["ours"] = score.score(report, case.truth)
             row["ours"]["equations"] = {g.target: {"verdict": g.verdict, "hypothesis": g.hypothesis,
-                                                   "exponent": g.exponent} for g in report.equations}
+                                                   "exponent": g.exponent, "naming": _naming(g)}
+                                        for g in report.equations}
     except Timeout:
         row["ours"] = {"error": f"timeout after {args.timeout} s"}
     except Exception as exc:  # a case the diagnosis cannot take is a finding, not a crash of the run
@@ -125,9 +136,9 @@ def _at(kind, noise):
 def table(rows: list[dict], group: str, labels: list) -> str:
     """Our figures, one line per group value."""
     head = ("| " + group + " | cases | top-1 <= 1 % noise | top-1 at 5 % | top-1 all | null: no gap | "
-            "null theta within 3 % (<= 1 % noise) | out-of-catalogue: confident wrong name | "
+            "null theta within 3 % (<= 1 % noise) | out-of-catalogue: confident wrong name | wrong names (all cases) | "
             "re-fitted start no worse (held-out free run) | diverged beside a verdict | errors | s per case |")
-    lines = [head, "|" + "---|" * 12]
+    lines = [head, "|" + "---|" * 13]
     for label in labels + ["all"]:
         part = [r for r in rows if label == "all" or r[group] == label]
         if not part:
@@ -137,7 +148,8 @@ def table(rows: list[dict], group: str, labels: list) -> str:
             f"| {label} | {len(part)} | {_rate(part, 'ours', 'top1', _low('catalogued'))} | "
             f"{_rate(part, 'ours', 'top1', _at('catalogued', 0.05))} | {_rate(part, 'ours', 'top1', _is('catalogued'))} | "
             f"{_rate(part, 'ours', 'no_gap', _is('null'))} | {_rate(part, 'ours', 'theta_ok', _low('null'))} | "
-            f"{_inverse_rate(part, 'ours', 'confident_wrong')} | {_rate(part, 'ours', 'retuned_no_worse')} | "
+            f"{_inverse_rate(part, 'ours', 'confident_wrong')} | {_inverse_rate(part, 'ours', 'wrong_name')} | "
+            f"{_rate(part, 'ours', 'retuned_no_worse')} | "
             f"{_inverse_rate(part, 'ours', 'diverged_beside_verdict')} | "
             f"{sum('error' in r['ours'] for r in part)} | "
             f"{(sum(seconds) / len(seconds)) if seconds else math.nan:.2f} |")

@@ -6,6 +6,8 @@ zoo case's truth.
   multiplicative: both are the power law on that component), and no other equation is flagged;
 - null cases: "no significant gap" overall;
 - out-of-catalogue cases: a *confident wrong name* is any "gap explained by" verdict;
+- every case: a *wrong name* is a "gap explained by" verdict that does not name the truth's
+  effect in the truth's equation (any name on a null or out-of-catalogue case);
 - the theta re-fitted starting model: every theta within 3 % of the truth (null cases);
 - held-out free runs: the re-fitted start no worse than the nominal one (1 % slack), and a
   *diverged* run (NRMSE not finite or above :data:`DIVERGED`) beside a verdict that is not
@@ -81,6 +83,9 @@ def score(report, truth: dict) -> dict:
         out["all_found"] = out["found"] == len(truth["effects"])
     else:
         out["confident_wrong"] = any(explained(g["verdict"]) for g in gaps.values())
+    if kind != "several":
+        right = lambda t, g: kind == "catalogued" and t in truth["targets"] and truth["name"].lower() in g["verdict"].lower()
+        out["wrong_name"] = any(explained(g["verdict"]) and not right(t, g) for t, g in gaps.items())
     steps = r.get("in_turn", {}).get("effects", [])
     real = truth.get("effects", [truth] if kind == "catalogued" else [])
     out["spurious"] = sum(not any(step_matches(s, t) and s["target"] == t["target"] for t in real) for s in steps)
