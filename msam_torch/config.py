@@ -167,6 +167,10 @@ class DataConfig(_Section):
     cutoff: Optional[float] = Field(None, gt=0, description="butterworth cut-off frequency in cycles per time unit "
                                                             "(Hz for seconds; default: the noise floor)")
     resample: bool = Field(False, description="interpolate irregularly sampled data onto a uniform grid")
+    input_hold: Literal["auto", "zoh", "linear"] = Field(
+        "auto", description="inputs between samples, for the weak form: zoh (held until the next sample, as a "
+                            "digital-to-analog converter does), linear, or auto (zoh for an input that changes at "
+                            "no more than half of its samples)")
 
 
 class SimulationConfig(_Section):

@@ -20,6 +20,7 @@ from typing import Mapping
 import numpy as np
 import torch
 
+from . import hold
 from .bandwidth import band_edge, decimate
 from .config import DataConfig
 from .data import Dataset, build_dataset
@@ -79,15 +80,17 @@ def _measured(dataset: Dataset) -> dict[str, np.ndarray]:
 
 def _signals(measured: dict, every: int, band: float, data: DataConfig, spec: ModelSpec, dtype,
              estimator: DerivativeEstimator, exact: bool, source: str) -> dict:
-    """Decimated measured signals and the derivatives the model reads that they lack."""
+    """Decimated measured signals (held inputs as their cell averages, :mod:`~msam_torch.hold`),
+    the derivatives the model reads that they lack, and each input's assumed hold."""
     t = measured["t"][::every]
+    measured, held = hold.represent(measured, spec.inputs, data.input_hold)
     kept = {k: decimate(v, every) for k, v in measured.items() if k != "t"}
     if exact:  # every signal given (noise-free simulation): nothing to estimate
-        return {"t": torch.tensor(t, dtype=dtype), "derivatives": "given",
+        return {"t": torch.tensor(t, dtype=dtype), "derivatives": "given", "input_hold": held,
                 **{k: torch.tensor(np.ascontiguousarray(v), dtype=dtype) for k, v in kept.items()}}
     dataset = build_dataset(t, kept, data, spec, {}, dtype, source, InBand(estimator, min(band * every, 0.45)),
                             keep_measured=True)
-    return {**dataset.signals, "derivatives": dataset.info["derivatives"]}
+    return {**dataset.signals, "derivatives": dataset.info["derivatives"], "input_hold": held}
 
 
 def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset | None,
@@ -112,10 +115,11 @@ def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset 
         held = None if held_out is None else build(held_out, "held-out data")
     except DataError as error:
         raise DataError(f"after decimation by {every}: {error}") from None
-    derivatives = signals.pop("derivatives")
-    signals, held = ({k: v.to(device) for k, v in d.items() if k != "derivatives"} if d is not None else None
-                     for d in (signals, held))
+    derivatives, input_hold = signals.pop("derivatives"), signals.pop("input_hold")
+    signals, held = ({k: v.to(device) for k, v in d.items() if k not in ("derivatives", "input_hold")}
+                     if d is not None else None for d in (signals, held))
     info = {"band_edge": band / dt, "band_edges": {k: v / dt for k, v in edges.items()}, "half_width_rule": rule,
             "decimation": every, "derivative_cutoff": min(DERIVATIVE_MARGIN * band, 0.45) / dt,
-            "weak_form_signals": "measured (unsmoothed)" if not exact else "given (exact)", "derivatives": derivatives}
+            "weak_form_signals": "measured (unsmoothed)" if not exact else "given (exact)", "derivatives": derivatives,
+            "input_hold": input_hold}
     return Estimation(signals, held, half_width, every, info)

@@ -162,7 +162,7 @@ def _well_posed(system: System, states: dict, reference: dict | None) -> bool:
 
 
 def _smooth(info: dict) -> frozenset:
-    """The inputs interpolated by cubic splines: the multisines (steps and PRBS: linearly)."""
+    """The inputs interpolated by cubic splines: the multisines (steps and PRBS are held)."""
     return frozenset(u for u, d in info.items() if d["kind"] == "multisine")
 
 

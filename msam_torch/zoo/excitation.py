@@ -1,6 +1,9 @@
 """Random excitation signals on a dense time grid, scaled to ``[-1, 1]``: random-phase multisines
 whose band reaches 0.01-0.2 of the sampling rate, random step sequences, and PRBS
-(``scipy.signal.max_len_seq``) held for as many samples as its band asks.
+(``scipy.signal.max_len_seq``) held for as many samples as its band asks. Steps and PRBS switch
+only at the sampling instants and hold their value until the next (zero-order hold), as a
+digital-to-analog converter clocked with the acquisition applies them: a switch between two
+samples would leave its instant unrecorded, an input no record can tell the method.
 """
 from __future__ import annotations
 
@@ -46,6 +49,7 @@ def draw(rng: np.random.Generator, t: np.ndarray, sample_rate: float, kind: str 
     as a share of the sampling rate (default drawn)."""
     kind = kind or str(rng.choice(KINDS))
     fraction = fraction or float(np.exp(rng.uniform(np.log(0.01), np.log(0.2))))
-    e = {"multisine": multisine, "steps": steps, "prbs": prbs}[kind](rng, t, fraction * sample_rate)
+    held = t if kind == "multisine" else t[0] + np.floor((t - t[0]) * sample_rate + 1e-6) / sample_rate
+    e = {"multisine": multisine, "steps": steps, "prbs": prbs}[kind](rng, held, fraction * sample_rate)
     e = e - (0.0 if kind == "prbs" else e.mean())
     return e / np.abs(e).max(), {"kind": kind, "band_fraction_of_sample_rate": fraction}

@@ -3,11 +3,10 @@ on a dense grid), independently of :mod:`msam_torch.simulation`; and the share o
 withheld effect contributes."""
 from __future__ import annotations
 
-from functools import partial
 
 import numpy as np
 from scipy.integrate import solve_ivp
-from scipy.interpolate import CubicSpline
+from scipy.interpolate import CubicSpline, interp1d
 
 from .system import System, term_value
 
@@ -18,10 +17,10 @@ TOLERANCE = 1e-8  # relative; absolute: 1e-2 of it times each state's typical si
 def simulate(system: System, t: np.ndarray, inputs: dict, initial: dict, effect=None,
              smooth: frozenset = frozenset()) -> dict | None:
     """States on grid ``t`` under ``inputs`` (arrays on ``t``'s dense grid ``dense_grid(t)``,
-    interpolated by cubic splines for the ``smooth`` ones, else linearly); None when the solver
-    fails or a trajectory leaves the finite numbers."""
+    interpolated by cubic splines for the ``smooth`` ones, else held from each dense point to the
+    next); None when the solver fails or a trajectory leaves the finite numbers."""
     dense = dense_grid(t)
-    interpolants = {u: CubicSpline(dense, v) if u in smooth else partial(np.interp, xp=dense, fp=v)
+    interpolants = {u: CubicSpline(dense, v) if u in smooth else interp1d(dense, v, kind="previous", assume_sorted=True)
                     for u, v in inputs.items()}
     derivative = system.derivative_map()
     states = list(system.states)
