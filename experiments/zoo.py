@@ -11,8 +11,9 @@ diverged free runs beside a verdict other than "inconclusive", and confident wro
 out-of-catalogue cases. The baseline (:mod:`msam_torch.zoo.sindy`) is scored with the same
 strict top-1 and null rule.
 
-Seeds: development used seeds 0-199 only; reported figures come from seeds 1000-1299, which were
-not looked at while the zoo, the scores or the baseline were written.
+Seeds: the zoo, the scores and the baseline were written on seeds 0-199, later changes were
+developed on 6300-6599; each published figure names seeds that were not looked at before it
+(docs/diagnose.md, "Generated cases").
 
 Run (report: 300 cases; about 5-10 s per case on 2 busy cores):
     PYTHONPATH=. python experiments/zoo.py --cases 300 --seed-start 1000 [--timeout 120] [--out runs/zoo.jsonl]

@@ -161,3 +161,23 @@ def test_sindy_baseline_scores_a_case():
     assert set(result) == {eq["target"] for eq in case.config["model"]["equations"]}
     assert all(r["threshold"] > 0 and np.isfinite(r["heldout_rmse"]) for r in result.values())
     assert set(sindy.score(result, case.truth)) == {"top1", "no_gap"}
+
+
+def test_wrong_names_are_counted_on_every_kind_of_case():
+    """A name that is not the truth's effect in the truth's equation is a wrong name; a case whose
+    effect is named right, or that names nothing, has none."""
+    def report(*gaps):
+        return {"verdict": "; ".join(g[1] for g in gaps), "equations": [
+            {"target": t, "verdict": v, "significant": v != "no significant gap", "effect": v[15:] or None,
+             "hypothesis": "w + w*abs(w)^gamma", "exponent": 1.0} for t, v in gaps]}
+    truth = {"kind": "catalogued", "name": "quadratic drag", "targets": ["w_dot"], "component": "w", "function": "w",
+             "exponent": 1.0}
+    assert not score.score(report(("w_dot", "gap explained by quadratic drag")), truth)["wrong_name"]
+    assert score.score(report(("w_dot", "gap explained by power-law damping")), truth)["wrong_name"]
+    assert score.score(report(("w_dot", "gap explained by quadratic drag"), ("i_dot", "gap explained by quadratic drag")),
+                       truth)["wrong_name"]  # the right name in another equation as well
+    assert not score.score(report(("w_dot", "gap not explained by the candidate set")), truth)["wrong_name"]
+    for kind in ("null", "out_of_catalogue"):
+        other = {"kind": kind, "name": None, "theta": {}}
+        assert score.score(report(("w_dot", "gap explained by Coulomb friction")), other)["wrong_name"]
+        assert not score.score(report(("w_dot", "no significant gap")), other)["wrong_name"]
