@@ -73,9 +73,11 @@ def test_free_run_checks_make_a_verdict_inconclusive():
     assert "worse than the nominal" in worse[0] and "--half-width" in worse[1]
     diverged = free_run_reasons(_free_run(0.5, 0.1, None, diverged=["adapted"]), Verdict.EXPLAINED)
     assert "adapted model's free run on held_out data diverged" in diverged[0]
-    # no verdict is printed beside a diverged free run, whichever model's it is
-    assert "adapted model's" in free_run_reasons(_free_run(0.5, 0.1, None, diverged=["adapted"]), Verdict.NO_GAP)[0]
-    assert "starting model's" in free_run_reasons(_free_run(None, 0.1, 0.05, diverged=["start"]), Verdict.EXPLAINED)[0]
+    # a diverged run undoes the verdict that rests on it, not another one
+    assert free_run_reasons(_free_run(0.5, 0.1, None, diverged=["adapted"]), Verdict.NO_GAP) == []
+    assert "theta re-fitted model's" in free_run_reasons(_free_run(0.5, None, 0.1, diverged=["retuned"]), Verdict.NO_GAP)[0]
+    # a diverging nominal model is a finding (van der Pol from a linear start): the explanation stands
+    assert free_run_reasons(_free_run(None, 1.9, 0.01, diverged=["start"]), Verdict.EXPLAINED) == []
     assert "did not converge" in free_run_reasons(_free_run(0.5, 0.1, 0.1, converged=False), Verdict.NO_GAP)[0]
 
 

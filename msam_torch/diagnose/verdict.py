@@ -1,9 +1,9 @@
 """The verdict of a diagnosis: one equation's, from the null rule, the bootstrap, the residual
 structure left and (for "no significant gap") the residual checks; the report's, from its
-equations' and the free runs' checks (docs/design.md section 3): a verdict is given only when no
-free run diverges and the model it rests on (the adapted model for an explained gap, else the
-theta re-fitted start) is no worse than the nominal model on held-out data; otherwise it is
-inconclusive, with the reasons and what to try."""
+equations' and the free runs' checks (docs/design.md section 3): a verdict is given only when the
+free run of the model it rests on (the adapted model for an explained gap, else the theta
+re-fitted start) does not diverge and is no worse than the nominal model's on held-out data;
+otherwise it is inconclusive, with the reasons and what to try."""
 from __future__ import annotations
 
 from enum import Enum
@@ -53,26 +53,27 @@ def equation_verdict(significant: bool, named: bool, win_frequency: float, struc
 
 
 def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
-    """Why the free runs do not support a verdict of ``kind`` (held-out data, else training): any
-    diverged run (no verdict is printed beside one), runs that did not converge, or the model
-    the verdict rests on worse than the nominal model by more than :data:`NO_WORSE` and the
-    resolution the free runs are checked to (:data:`~.options.AGREEMENT`). An explained gap rests
-    on the adapted model; any other verdict on the theta re-fitted start (a re-fit of a structure
-    that misses an effect may generalise worse than the nominal theta: that alone does not undo
-    an explanation, whose adapted model must then beat the nominal model)."""
+    """Why the free runs do not support a verdict of ``kind`` (held-out data, else training): the
+    model the verdict rests on diverged, or is worse than the nominal model by more than
+    :data:`NO_WORSE` and the resolution the free runs are checked to (:data:`~.options.AGREEMENT`),
+    or the runs did not converge. An explained gap rests on the adapted model, any other verdict
+    on the theta re-fitted start: a re-fit of a structure that misses an effect compensates for it
+    on the training excitation and may simulate other data worse than the nominal theta, and a
+    nominal model that diverges is a finding; neither undoes an explanation whose adapted model
+    beats the nominal one."""
     if not free_run:
         return []
     label = "held_out" if "held_out" in free_run else "train"
     entry = free_run[label]
     diverged, nrmse = entry["diverged"], entry["nrmse"]
-    reasons = [f"the {_MODEL[model]} model's free run on {label} data diverged" for model in _MODEL if model in diverged]
+    model = "adapted" if kind is Verdict.EXPLAINED else "retuned"
+    reasons = [f"the {_MODEL[model]} model's free run on {label} data diverged"] if model in diverged else []
     if not entry["solver"]["converged"]:
         reasons.append(f"the free runs did not converge when the {entry['solver']['method']} step was halved to "
                        f"{entry['solver']['step']:.3g}")
     if reasons:
         return reasons + [TRY["diverged"]]
-    model = "adapted" if kind is Verdict.EXPLAINED else "retuned"
-    if nrmse[model] > (1 + NO_WORSE) * nrmse["start"] + AGREEMENT:
+    if "start" not in diverged and nrmse[model] > (1 + NO_WORSE) * nrmse["start"] + AGREEMENT:
         return [f"the {_MODEL[model]} model's free run on {label} data is worse than the nominal model's "
                 f"(NRMSE {nrmse[model]:.3g} vs {nrmse['start']:.3g}): {_WORSE[model]}", TRY["estimation"]]
     return []
