@@ -78,6 +78,9 @@ def test_free_run_checks_make_a_verdict_inconclusive():
     assert "theta re-fitted model's" in free_run_reasons(_free_run(0.5, None, 0.1, diverged=["retuned"]), Verdict.NO_GAP)[0]
     # a diverging nominal model is a finding (van der Pol from a linear start): the explanation stands
     assert free_run_reasons(_free_run(None, 1.9, 0.01, diverged=["start"]), Verdict.EXPLAINED) == []
+    # ... but only when the adapted model follows the record better than its mean does
+    far = free_run_reasons(_free_run(None, None, 1.8, diverged=["start", "retuned"]), Verdict.EXPLAINED)
+    assert "nominal model's free run on held_out data diverged" in far[0] and "no closer than its mean" in far[0]
     assert "did not converge" in free_run_reasons(_free_run(0.5, 0.1, 0.1, converged=False), Verdict.NO_GAP)[0]
 
 

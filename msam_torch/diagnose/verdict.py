@@ -30,6 +30,7 @@ class Verdict(str, Enum):
 _TEXT = {Verdict.NO_GAP: "no significant gap", Verdict.NOT_EXPLAINED: "gap not explained by the candidate set",
          Verdict.INCONCLUSIVE: "inconclusive"}
 NO_WORSE = 0.01  # the re-fitted start's held-out free-run NRMSE may exceed the nominal one's by this share
+NO_INFORMATION = 1.0  # a free run whose NRMSE reaches this is no closer to the record than its mean
 TRY = {"estimation": "try another --half-width or a held-out record from another excitation",
        "diverged": "try --solver dopri5 or a smaller --solver-step; a model that diverges on its own is not a fit",
        "residual": "the starting model misses something the candidates do not express: add candidate adjustments "
@@ -55,8 +56,9 @@ def equation_verdict(significant: bool, named: bool, win_frequency: float, struc
 def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
     """Why the free runs do not support a verdict of ``kind`` (held-out data, else training): the
     model the verdict rests on diverged, or is worse than the nominal model by more than
-    :data:`NO_WORSE` and the resolution the free runs are checked to (:data:`~.options.AGREEMENT`),
-    or the runs did not converge. An explained gap rests on the adapted model, any other verdict
+    :data:`NO_WORSE` and the resolution the free runs are checked to (:data:`~.options.AGREEMENT`)
+    (where the nominal model diverged: is no closer to the record than its mean,
+    :data:`NO_INFORMATION`), or the runs did not converge. An explained gap rests on the adapted model, any other verdict
     on the theta re-fitted start: a re-fit of a structure that misses an effect compensates for it
     on the training excitation and may simulate other data worse than the nominal theta, and a
     nominal model that diverges is a finding; neither undoes an explanation whose adapted model
@@ -73,6 +75,9 @@ def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
                        f"{entry['solver']['step']:.3g}")
     if reasons:
         return reasons + [TRY["diverged"]]
+    if "start" in diverged and nrmse[model] >= NO_INFORMATION:
+        return [f"the nominal model's free run on {label} data diverged and the {_MODEL[model]} model's does not "
+                f"follow the record (NRMSE {nrmse[model]:.3g}, no closer than its mean)", TRY["estimation"]]
     if "start" not in diverged and nrmse[model] > (1 + NO_WORSE) * nrmse["start"] + AGREEMENT:
         return [f"the {_MODEL[model]} model's free run on {label} data is worse than the nominal model's "
                 f"(NRMSE {nrmse[model]:.3g} vs {nrmse['start']:.3g}): {_WORSE[model]}", TRY["estimation"]]
