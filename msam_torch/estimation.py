@@ -26,7 +26,7 @@ from .config import DataConfig
 from .data import Dataset, build_dataset
 from .derivatives import DerivativeEstimator, InBand
 from .errors import DataError
-from .spec import ModelSpec
+from .spec import ModelSpec, derivative_name, split_derivative
 from .weak import half_width_for
 
 SAMPLES_PER_PERIOD = 7  # decimation keeps the band edge below 1/7 of the sampling rate
@@ -78,19 +78,29 @@ def _measured(dataset: Dataset) -> dict[str, np.ndarray]:
     return {k: v.detach().cpu().numpy() for k, v in given.items()}
 
 
+def kinking(spec: ModelSpec) -> dict:
+    """Per signal whose rate an equation gives (``T`` of ``T_dot``, ``x_dot`` of ``x_ddot``), the
+    inputs that equation reads: where one of them switches, the signal has a kink."""
+    out = {}
+    for equation in spec.equations:
+        base, order = split_derivative(equation.target)
+        out[derivative_name(base, order - 1)] = [u for u in spec.inputs if u in equation.signals]
+    return out
+
+
 def _signals(measured: dict, every: int, band: float, data: DataConfig, spec: ModelSpec, dtype,
              estimator: DerivativeEstimator, exact: bool, source: str) -> dict:
-    """Decimated measured signals (held inputs as their cell averages, :mod:`~msam_torch.hold`),
+    """Decimated measured signals (held inputs as their quadrature values, :mod:`~msam_torch.hold`),
     the derivatives the model reads that they lack, and each input's assumed hold."""
     t = measured["t"][::every]
-    measured, held = hold.represent(measured, spec.inputs, data.input_hold)
+    measured, held, kinks = hold.represent(measured, spec.inputs, data.input_hold, kinking(spec))
     kept = {k: decimate(v, every) for k, v in measured.items() if k != "t"}
     if exact:  # every signal given (noise-free simulation): nothing to estimate
-        return {"t": torch.tensor(t, dtype=dtype), "derivatives": "given", "input_hold": held,
+        return {"t": torch.tensor(t, dtype=dtype), "derivatives": "given", "input_hold": held, "kinks": kinks,
                 **{k: torch.tensor(np.ascontiguousarray(v), dtype=dtype) for k, v in kept.items()}}
     dataset = build_dataset(t, kept, data, spec, {}, dtype, source, InBand(estimator, min(band * every, 0.45)),
                             keep_measured=True)
-    return {**dataset.signals, "derivatives": dataset.info["derivatives"], "input_hold": held}
+    return {**dataset.signals, "derivatives": dataset.info["derivatives"], "input_hold": held, "kinks": kinks}
 
 
 def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset | None,
@@ -115,11 +125,11 @@ def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset 
         held = None if held_out is None else build(held_out, "held-out data")
     except DataError as error:
         raise DataError(f"after decimation by {every}: {error}") from None
-    derivatives, input_hold = signals.pop("derivatives"), signals.pop("input_hold")
-    signals, held = ({k: v.to(device) for k, v in d.items() if k not in ("derivatives", "input_hold")}
+    derivatives, input_hold, kinks = signals.pop("derivatives"), signals.pop("input_hold"), signals.pop("kinks")
+    signals, held = ({k: v.to(device) for k, v in d.items() if k not in ("derivatives", "input_hold", "kinks")}
                      if d is not None else None for d in (signals, held))
     info = {"band_edge": band / dt, "band_edges": {k: v / dt for k, v in edges.items()}, "half_width_rule": rule,
             "decimation": every, "derivative_cutoff": min(DERIVATIVE_MARGIN * band, 0.45) / dt,
             "weak_form_signals": "measured (unsmoothed)" if not exact else "given (exact)", "derivatives": derivatives,
-            "input_hold": input_hold}
+            "input_hold": input_hold, "kinks_corrected": kinks}
     return Estimation(signals, held, half_width, every, info)

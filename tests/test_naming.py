@@ -75,9 +75,18 @@ def heated_body():
     return model, frames, {"T": "temperature", "Ta": "temperature", "u": "power"}
 
 
+def heated_body_exchanging():
+    """The heated body with no constant term in the starting model: the exchange hypothesis
+    (msam_torch.diagnose.hypotheses) fits the law's constant itself."""
+    model, frames, quantities = heated_body()
+    model["equations"][0]["components"] = model["equations"][0]["components"][:3]
+    return model, frames, quantities
+
+
 @pytest.mark.parametrize("case, name, total", [(drive, "Coulomb friction", 0.0),
                                                (population, "logistic self-limitation", 2.0),
-                                               (heated_body, "radiation", 4.0)])
+                                               (heated_body, "radiation", 4.0),
+                                               (heated_body_exchanging, "radiation", 4.0)])
 def test_named_from_declared_quantities_and_never_wrong_without(case, name, total):
     model, frames, quantities = case()
     gap = run(model, frames, quantities)

@@ -62,6 +62,18 @@ class Roles:
     def of(self, signal: str) -> str | None:
         return self.quantities.get(signal)
 
+    def exchanging(self, equation: Equation, nominal) -> tuple[int, ...]:
+        """Adjustable components that are a signal exchanging with another signal of the same
+        declared quantity in the same equation, their starting thetas of opposite signs (the
+        ``T`` of ``-h (T - Ta)``); ``nominal``: the starting thetas. None where a component is a
+        constant: it carries the exchange's constant already."""
+        if any(not c.term.names for c in equation.components):
+            return ()
+        plain = {i: c.term.text for i, c in enumerate(equation.components) if c.term.text in self.quantities}
+        return tuple(i for i in equation.adjustable if i in plain and any(
+            j != i and self.of(s) == self.of(plain[i]) and float(nominal[i]) * float(nominal[j]) < 0
+            for j, s in plain.items()))
+
     @classmethod
     def of_equation(cls, spec: ModelSpec | None, equation: Equation) -> "Roles":
         declared = dict(spec.quantities) if spec is not None else {}

@@ -30,7 +30,7 @@ def models(extended: Equation, equation: Equation, nominal: torch.Tensor, choice
            boot: Bootstrap | None, winner: int, is_effect: torch.Tensor, scale: torch.Tensor) -> EquationModel:
     """Extended-form models batched as [start, retuned, adapted, (retuned, adapted) per bootstrap trial]."""
     q = len(equation.adjustable)
-    start_theta = torch.cat([nominal[list(equation.adjustable)], nominal.new_zeros(q)])
+    start_theta = torch.cat([nominal[list(equation.adjustable)], nominal.new_zeros(choices.shape[-1] - q)])
     rows = [(choices[0], torch.zeros_like(original.gamma[0, 0]), start_theta, nominal[list(equation.fixed)])]
     for c in (0, winner):
         rows.append((choices[c], original.gamma[0, c], original.theta[0, c], original.theta_fixed[0, c]))

@@ -45,12 +45,15 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
                       parameters: dict, options: DiagnoseOptions, generator: torch.Generator) -> EquationDiagnosis:
     """The stages of the diagnosis of ``equation`` (module docstring) on the signals and
     half-width of ``estimation``; ``generator`` draws the bootstrap trials."""
+    # every hypothesis (exchange laws where a signal exchanges with one of its own quantity)
+    nominal = spec.theta(equation, parameters)
+    hypotheses = enumerate_hypotheses(equation, catalogue.Roles.of_equation(spec, equation).exchanging(equation, nominal))
     # weak-form rows of the equation extended by a copy of every adjustable component
-    extended = extended_equation(equation)
+    extended = extended_equation(equation, exchange=any(h.kind == "exchange" for h in hypotheses))
     weak = WeakForm.build(extended, estimation.train, estimation.held_out, estimation.half_width, options.blocks)
     t = weak.signals["t"]
+    nominal = nominal.to(t)
     # every hypothesis fitted at once, scored on the held-out rows
-    hypotheses = enumerate_hypotheses(equation)
     choices, starts = encode(equation, hypotheses, t.device)
     step_options = StepOptions(scaling="gauss_newton", step_size="one", theta="varpro", damping=options.damping)
     original = fit(weak.data, choices, starts, step_options, options.steps)
@@ -63,7 +66,6 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     boot = bootstrap(weak, choices, original, rmse, noise, order, options, step_options, generator)
 
     # catalogue names within each hypothesis's bootstrap interval of its total exponent
-    nominal = spec.theta(equation, parameters).to(t)
     named = name_hypotheses(spec, equation, hypotheses, original, boot, nominal)
     names = named.names
 

@@ -8,7 +8,12 @@ a copy of every adjustable component, and the adjustment set F plus two constant
 - ``multiplicative``: one component adjusted, ``M_i -> M_i |f|^gamma`` (the paper's Eq. 8);
 - ``additive``: one component split into two copies (docs/design.md section 3): the original
   ``theta_i M_i`` and a copy ``theta_i' M_i |f|^gamma`` with its own exponent and theta, started
-  at several exponents away from 0 (at 0 the copies coincide and never separate).
+  at several exponents away from 0 (at 0 the copies coincide and never separate);
+- ``exchange``: an additive copy ``theta_i' s|s|^gamma`` of a signal ``s`` that the equation
+  exchanges with a reference of the same quantity (``-h (T - Ta)``: heat with the ambient), plus a
+  fitted constant: the law of an exchange is ``c (s|s|^gamma - r|r|^gamma)``, and the reference's
+  part is a constant plus a linear term that its own component already carries, to first order in
+  the reference's variation. Without the constant the copy's exponent bends to mimic it.
 
 The fit is variable projection (theta re-solved every step) with damped Gauss-Newton steps on
 gamma, taken by :func:`msam_torch.step.step` on all trials and hypotheses at once.
@@ -34,7 +39,7 @@ SANE_EXPONENT = 5.0  # |gamma| beyond which a fit ran away (catalogued laws need
 class Hypothesis:
     """One candidate explanation: ``kind``, the component (index in the equation), the function."""
 
-    kind: str  # 'retuned', 'multiplicative' or 'additive'
+    kind: str  # 'retuned', 'multiplicative', 'additive' or 'exchange'
     component: int | None = None
     function: int | None = None
     start: float = 0.0
@@ -46,17 +51,23 @@ class Hypothesis:
         f = equation.adjustments[self.function].text
         if self.kind == "multiplicative":
             return f"{term} -> {term}*{f}^gamma"
+        if self.kind == "exchange":
+            return f"{term} + {term}*{f}^gamma + constant"
         return f"{term} + {term}*{f}^gamma"
 
 
-def extended_equation(equation: Equation) -> Equation:
-    """Starting components + a copy of every adjustable one; F + the constants 1 and 0."""
+def extended_equation(equation: Equation, exchange: bool = False) -> Equation:
+    """Starting components + a copy of every adjustable one (+ the constant ``1`` of exchange
+    hypotheses); F + the constants 1 and 0."""
     copies = tuple(replace(equation.components[i], adjustable=True) for i in equation.adjustable)
     constants = (parse("1", "diagnose", set()), parse("0", "diagnose", set()))
-    return Equation(equation.target, equation.components + copies, equation.adjustments + constants)
+    offset = (replace(equation.components[equation.adjustable[0]], term=constants[0], adjustable=True, allowed=None),) if exchange else ()
+    return Equation(equation.target, equation.components + copies + offset, equation.adjustments + constants)
 
 
-def enumerate_hypotheses(equation: Equation, starts=ADDITIVE_STARTS) -> list[Hypothesis]:
+def enumerate_hypotheses(equation: Equation, exchanging: tuple[int, ...] = (), starts=ADDITIVE_STARTS) -> list[Hypothesis]:
+    """Every hypothesis of ``equation``; ``exchanging``: the components with an exchange partner
+    (:meth:`.catalogue.Roles.exchanging`), each also tried as an exchange law of its own signal."""
     found = [Hypothesis("retuned")]
     for i in equation.adjustable:
         for f in range(len(equation.adjustments)):
@@ -64,23 +75,31 @@ def enumerate_hypotheses(equation: Equation, starts=ADDITIVE_STARTS) -> list[Hyp
     for i in equation.adjustable:
         for f in range(len(equation.adjustments)):
             found.extend(Hypothesis("additive", i, f, s) for s in starts)
+    for i in exchanging:
+        for f, a in enumerate(equation.adjustments):
+            if a.is_magnitude and a.inner_text == equation.components[i].term.text:
+                found.extend(Hypothesis("exchange", i, f, s) for s in starts)
     return found
 
 
 def encode(equation: Equation, hypotheses: list[Hypothesis], device=None):
-    """Choices (C, 2Q) into the extended adjustment set, and starting exponents (C, 2Q)."""
+    """Choices (C, 2Q [+1]) into the extended adjustment set, and starting exponents: the slots of
+    the components, of their copies and, with exchange hypotheses, of the constant."""
     q, n_f = len(equation.adjustable), len(equation.adjustments)
     one, zero = n_f, n_f + 1
-    choices = torch.full((len(hypotheses), 2 * q), zero, dtype=torch.long)
+    width = 2 * q + any(h.kind == "exchange" for h in hypotheses)
+    choices = torch.full((len(hypotheses), width), zero, dtype=torch.long)
     choices[:, :q] = one
-    starts = torch.zeros(len(hypotheses), 2 * q, dtype=torch.float64)
+    starts = torch.zeros(len(hypotheses), width, dtype=torch.float64)
     slot = {i: k for k, i in enumerate(equation.adjustable)}
     for c, h in enumerate(hypotheses):
         if h.kind == "multiplicative":
             choices[c, slot[h.component]] = h.function
-        elif h.kind == "additive":
+        elif h.kind in ("additive", "exchange"):
             choices[c, q + slot[h.component]] = h.function
             starts[c, q + slot[h.component]] = h.start
+        if h.kind == "exchange":
+            choices[c, 2 * q] = one
     return choices.to(device), starts.to(device)
 
 
@@ -113,7 +132,7 @@ def fit(data: EquationData, choices: torch.Tensor, start: torch.Tensor, options:
         best_gamma = torch.where(improved.unsqueeze(-1), state.gamma, best_gamma)
     final = evaluate(selection, replace(state, gamma=best_gamma), options)
     q = choices.shape[-1] // 2
-    copy_on = choices[:, q:] < data.log_f.shape[-1] - 2  # additive slots in use
+    copy_on = choices[:, q:] < data.log_f.shape[-1] - 2  # additive slots in use (the constant's is never)
     log_pair = (copy_on & (best_gamma[..., q:].abs() < COLLINEAR)).any(-1)
     invalid = state.diverged | ~torch.isfinite(best_fitness) | log_pair
     return Fitted(best_gamma, final.theta, final.theta_fixed, best_fitness, invalid)
@@ -141,7 +160,7 @@ def heldout_rmse(val_data: EquationData, val_rows: torch.Tensor, choices: torch.
 def slot(equation: Equation, h: Hypothesis) -> int:
     """The exponent slot of hypothesis ``h`` among the extended equation's 2Q adjustable slots."""
     q = len(equation.adjustable)
-    return equation.adjustable.index(h.component) + (q if h.kind == "additive" else 0)
+    return equation.adjustable.index(h.component) + (q if h.kind in ("additive", "exchange") else 0)
 
 
 def exponent(h: Hypothesis, equation: Equation, gamma: torch.Tensor) -> float | None:
