@@ -79,9 +79,10 @@ def represent(measured: dict, inputs, rule: str, kinks: dict | None = None) -> t
     behaviour = {u: ("zoh" if rule == "zoh" or (rule == "auto" and is_held(measured[u])) else "linear")
                  for u in inputs if u in measured}
     out = {k: quadrature_values(v) if behaviour.get(k) == "zoh" else v for k, v in measured.items()}
+    switches = {u: np.diff(measured[u], prepend=measured[u][:1]) != 0 for u, b in behaviour.items() if b == "zoh"}
     corrected = []
     for x, read in (kinks or {}).items():
-        switching = [np.diff(measured[u], prepend=measured[u][:1]) != 0 for u in read if behaviour.get(u) == "zoh"]
+        switching = [switches[u] for u in read if u in switches]
         fixed = kink_corrected(measured[x], np.any(switching, axis=0)) if x in measured and switching else None
         if fixed is not None:
             out[x] = fixed

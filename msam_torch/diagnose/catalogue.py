@@ -65,8 +65,8 @@ class Roles:
     def exchanging(self, equation: Equation, nominal) -> tuple[int, ...]:
         """Adjustable components that are a signal exchanging with another signal of the same
         declared quantity in the same equation, their starting thetas of opposite signs (the
-        ``T`` of ``-h (T - Ta)``); ``nominal``: the starting thetas. None where a component is a
-        constant: it carries the exchange's constant already."""
+        ``T`` of ``-h (T - Ta)``); ``nominal``: the starting thetas. None in an equation that holds
+        a constant component: it carries the exchange's constant already."""
         if any(not c.term.names for c in equation.components):
             return ()
         plain = {i: c.term.text for i, c in enumerate(equation.components) if c.term.text in self.quantities}

@@ -27,12 +27,13 @@ import torch
 from ..candidates import EquationData, Selection, columns, predict
 from ..expressions import parse
 from ..result import format_component, format_equation
-from ..spec import Equation
+from ..spec import Component, Equation
 from ..step import State, StepOptions, evaluate, step
 
 ADDITIVE_STARTS = (-0.5, 0.5, 1.5)
 COLLINEAR = 0.15  # |gamma| of an additive copy below which it is a log pair of its original (rejected)
 SANE_EXPONENT = 5.0  # |gamma| beyond which a fit ran away (catalogued laws need at most 3)
+COPIES = ("additive", "exchange")  # kinds whose exponent sits in a copy's slot
 
 
 @dataclass(frozen=True)
@@ -61,7 +62,7 @@ def extended_equation(equation: Equation, exchange: bool = False) -> Equation:
     hypotheses); F + the constants 1 and 0."""
     copies = tuple(replace(equation.components[i], adjustable=True) for i in equation.adjustable)
     constants = (parse("1", "diagnose", set()), parse("0", "diagnose", set()))
-    offset = (replace(equation.components[equation.adjustable[0]], term=constants[0], adjustable=True, allowed=None),) if exchange else ()
+    offset = (Component(term=constants[0], theta=constants[1]),) if exchange else ()
     return Equation(equation.target, equation.components + copies + offset, equation.adjustments + constants)
 
 
@@ -95,7 +96,7 @@ def encode(equation: Equation, hypotheses: list[Hypothesis], device=None):
     for c, h in enumerate(hypotheses):
         if h.kind == "multiplicative":
             choices[c, slot[h.component]] = h.function
-        elif h.kind in ("additive", "exchange"):
+        elif h.kind in COPIES:
             choices[c, q + slot[h.component]] = h.function
             starts[c, q + slot[h.component]] = h.start
         if h.kind == "exchange":
@@ -160,7 +161,7 @@ def heldout_rmse(val_data: EquationData, val_rows: torch.Tensor, choices: torch.
 def slot(equation: Equation, h: Hypothesis) -> int:
     """The exponent slot of hypothesis ``h`` among the extended equation's 2Q adjustable slots."""
     q = len(equation.adjustable)
-    return equation.adjustable.index(h.component) + (q if h.kind in ("additive", "exchange") else 0)
+    return equation.adjustable.index(h.component) + (q if h.kind in COPIES else 0)
 
 
 def exponent(h: Hypothesis, equation: Equation, gamma: torch.Tensor) -> float | None:
