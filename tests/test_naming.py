@@ -9,6 +9,7 @@ from scipy.integrate import solve_ivp
 
 from msam_torch.config import load_config
 from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
+from msam_torch.diagnose import catalogue
 from msam_torch.diagnose.catalogue import bundled
 from msam_torch.errors import ConfigError
 from msam_torch.spec import ModelSpec
@@ -152,3 +153,17 @@ def test_bundled_catalogue_covers_the_domains():
     domains = {e.domain for e in bundled()}
     assert {"mechanical", "electrical", "hydraulic", "thermal", "population_kinetics"} <= domains
     assert len({e.name for e in bundled()}) == len(bundled()) >= 15
+
+
+@pytest.mark.parametrize("total, named", [(1.5, "power-law damping"), (1.8, None), (1.9, "quadratic drag"),
+                                          (0.05, "Coulomb friction"), (-0.15, None)])
+def test_a_name_needs_the_only_entry_the_interval_holds(total, named):
+    """On a speed, ``total`` +- 0.2: a range holding the fit and a single exponent inside the
+    interval are both consistent with it; then neither is named (1.8: power-law damping's range
+    and quadratic drag's 2; -0.15: the Stribeck branch's range and Coulomb friction's 0, the
+    exponent of ``sign(v)``)."""
+    speed = catalogue.Reading("velocity", "velocity", "velocity", "v", 1.0)
+    found = [e.name for e in catalogue.consistent(catalogue.entries(), speed, total, 0.2, same_sign=True)]
+    entry = catalogue.match(catalogue.entries(), speed, total, 0.2, same_sign=True)
+    assert (entry.name if entry else None) == named
+    assert len(found) == (1 if named else 2), found

@@ -11,7 +11,7 @@ import torch
 from msam_torch.api import adapt, make_trainer
 from msam_torch.config import load_config
 from msam_torch.data import Dataset
-from msam_torch.diagnose import diagnose
+from msam_torch.diagnose import DiagnoseOptions, diagnose
 from msam_torch.errors import ConfigError
 from msam_torch.simulation import build_model, load_records, output_states
 from msam_torch.spec import ModelSpec
@@ -103,3 +103,23 @@ def test_a_dataset_a_mapping_and_a_path_give_the_record_of_the_config_file(tmp_p
         for name in ("t", "external", "outputs", "guess"):
             torch.testing.assert_close(getattr(record, name), getattr(reference, name), rtol=0, atol=0)
     assert reference.outputs.shape == (1, 30) and reference.guess.tolist() == [3.0, float(frame["y"][0])]
+
+
+@pytest.mark.parametrize("power, verdict", [(1.0, "no significant gap"), (0.5, "inconclusive")])
+def test_no_gap_by_simulation_needs_a_residual_that_looks_like_noise(tmp_path, power, verdict):
+    """Two tanks with linear (``power`` 1) or square-root outflow, the lower level measured with
+    1 % white noise, a linear starting model, the null rule made unreachable: on linear tanks the
+    re-fitted start's held-out free-run residual is white and the verdict is "no significant gap";
+    on square-root tanks it is autocorrelated, so the same rule gives "inconclusive" and says why."""
+    torricelli_record(tmp_path / "tanks.csv", n=150, power=power)
+    frame = pd.read_csv(tmp_path / "tanks.csv")
+    frame["y"] += 0.01 * frame["y"].std() * np.random.default_rng(1).standard_normal(len(frame))
+    train, held = frame[:100], frame[100:].assign(t=lambda f: f["t"] - f["t"].iloc[0])
+    report = diagnose(load_config(TANKS, SHORT), data=train, validation=held, base_dir=tmp_path,
+                      options=DiagnoseOptions(relative=10.0))
+    checks = report.equations[1].checks
+    assert report.verdict.split(";")[0] == verdict, report.reasons
+    if power == 0.5:
+        assert checks["ljung_box_p"] < 1e-6 and any("autocorrelated" in r for r in report.reasons), checks
+    else:
+        assert checks["ljung_box_p"] > 0.01 and checks["failed"] == [] and report.reasons == (), checks

@@ -33,19 +33,22 @@ TANKS = {
 }
 
 
-def torricelli_record(path: Path, n: int = 150, dt: float = 4.0) -> None:
-    """Two tanks with square-root outflow under a random staircase input; only x2 is written."""
+def torricelli_record(path: Path, n: int = 150, dt: float = 4.0, power: float = 0.5) -> None:
+    """Two tanks with square-root outflow (level ** ``power``) under a random staircase input; only
+    x2 is written (integrated sample by sample under the held input)."""
     rng = np.random.default_rng(0)
     u = np.repeat(rng.uniform(1.0, 5.0, n // 10 + 1), 10)[:n]
     t = torch.arange(n, dtype=torch.float64) * dt
-    u_t = torch.as_tensor(u)
 
-    def rhs(time, x):
-        k = torch.clamp((time / dt + 1e-9).long(), max=n - 1)
+    def rhs(level, x):  # the inflow ``level`` held over a sample
         x1, x2 = x[0].clamp_min(0), x[1].clamp_min(0)
-        return torch.stack([-0.08 * x1.sqrt() + 0.05 * u_t[k], 0.08 * x1.sqrt() - 0.07 * x2.sqrt()])
+        return torch.stack([-0.08 * x1**power + 0.05 * level, 0.08 * x1**power - 0.07 * x2**power])
 
-    x = odeint(rhs, torch.tensor([2.0, 3.0], dtype=torch.float64), t, method="rk4", options={"step_size": dt / 4})
+    x = [torch.tensor([2.0, 3.0], dtype=torch.float64)]
+    for k in range(n - 1):  # sample by sample, so that no solver stage reads the next sample's input
+        x.append(odeint(lambda _, v: rhs(float(u[k]), v), x[-1], t[k:k + 2], method="rk4",
+                        options={"step_size": dt / 8})[-1])
+    x = torch.stack(x)
     pd.DataFrame({"t": t.numpy(), "u": u, "y": x[:, 1].numpy()}).to_csv(path, index=False)
 
 
@@ -119,3 +122,29 @@ def test_cubic_input_hold_follows_a_band_limited_input(tmp_path):
         errors[hold] = float(between), float((drift - drift.mean()).abs().max() * w)
     assert errors["cubic"][0] < 0.01 < 0.15 < errors["linear"][0]
     assert errors["cubic"][1] < 0.01 < 0.1 < errors["linear"][1]
+
+
+@pytest.mark.parametrize("substeps", [1, 3])
+def test_a_held_input_is_read_by_every_stage_of_its_own_steps(tmp_path, substeps):
+    """An integrator x_dot = u under a held (zoh) random input: every Runge-Kutta step, its last
+    stage at the next sample included, reads the input held over that step, so the run is the
+    exact running sum of u dt (a last stage reading the next sample's input is off by up to
+    dt/8 of an input step per sample)."""
+    rng = np.random.default_rng(3)
+    u = rng.uniform(-1.0, 1.0, 200)
+    pd.DataFrame({"t": np.arange(200) * 0.5, "u": u, "x": np.concatenate([[0.0], np.cumsum(u[:-1]) * 0.5])}).to_csv(
+        tmp_path / "held.csv", index=False)
+    config = load_config({
+        "model": {"states": ["x"], "inputs": ["u"], "parameters": {"c": 0.0},
+                  "equations": [{"target": "x_dot", "components": [{"term": "x", "theta": "c"},
+                                                                    {"term": "u", "theta": 1.0, "adjustable": False}],
+                                 "adjustments": ["abs(x)"]}]},
+        "data": {"file": "held.csv", "time": "t", "columns": {"u": "u", "x": "x"}},
+        "adaptation": {"evaluation": "simulation", "simulation": {"output": ["x"], "input_hold": "zoh"}}})
+    spec = ModelSpec.from_config(config.model)
+    model = build_model(spec, spec.equations)
+    record, _ = load_records(config, spec, model, output_states(config, spec, model), tmp_path)
+    p = Parameters(torch.zeros(1, 1, dtype=torch.float64), torch.tensor([[1]]), torch.zeros(1, 1, dtype=torch.float64),
+                   torch.ones(1, 1, dtype=torch.float64), torch.ones(1, 1, dtype=torch.float64))
+    x = simulate(model, record, p, torch.zeros(1, 1, dtype=torch.float64), substeps=substeps)[0, :, 0]
+    torch.testing.assert_close(x, record.outputs[0], rtol=0, atol=1e-9)

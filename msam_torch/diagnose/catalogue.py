@@ -121,33 +121,33 @@ def read(roles: Roles, equation: Equation, component: int, function: int) -> Rea
     return Reading(roles.of(state), roles.of(term.text), roles.of(signal) if signal else None, signal, power)
 
 
-def match(catalogue: tuple[EffectConfig, ...], reading: Reading, total: float, half_width: float,
-          same_sign: bool) -> EffectConfig | None:
-    """The entry a total exponent ``total`` +- ``half_width`` names, or None.
+def consistent(catalogue: tuple[EffectConfig, ...], reading: Reading, total: float, half_width: float,
+               same_sign: bool) -> list[EffectConfig]:
+    """The entries a total exponent ``total`` +- ``half_width`` is consistent with.
 
-    Among entries whose quantities fit, those the fit is consistent with: a single-valued exponent
-    inside the interval, a range holding ``total`` itself. The nearest one names it (a range that
-    holds ``total`` is at distance 0); two at the same distance name nothing. An effect whose
-    component and dependency are the same quantity acts through one signal: ``s`` must be ``M``
-    (``h1 |h2|^0.5`` is no outflow law of either level). A fit whose interval holds ``gamma = 0``
-    (the component's own law, unchanged) names nothing."""
+    Among entries whose quantities fit: a single-valued exponent inside the interval, a range
+    holding ``total`` itself. An effect whose component and dependency are the same quantity acts
+    through one signal: ``s`` must be ``M`` (``h1 |h2|^0.5`` is no outflow law of either level).
+    A fit whose interval holds ``gamma = 0`` (the component's own law, unchanged) is consistent
+    with none."""
     if reading.power is None or None in (reading.acts_on, reading.term, reading.depends_on):
-        return None
+        return []
     if (reading.term == reading.depends_on and reading.power != 1.0) or abs(total - reading.power) <= half_width:
-        return None
+        return []
     fits = [e for e in catalogue if reading.acts_on in e.acts_on and reading.term in e.term
             and reading.depends_on in e.depends_on and e.sign in ("any", "same" if same_sign else "opposite")]
-    distance = {}
-    for e in fits:
-        if isinstance(e.exponent, tuple):
-            if e.exponent[0] <= total <= e.exponent[1]:
-                distance[e.name] = (0.0, e)
-        elif abs(e.exponent - total) <= half_width:
-            distance[e.name] = (abs(e.exponent - total), e)
-    ranked = sorted(distance.values(), key=lambda d: d[0])
-    if not ranked or (len(ranked) > 1 and ranked[1][0] == ranked[0][0]):
-        return None
-    return ranked[0][1]
+    inside = lambda e: (e.exponent[0] <= total <= e.exponent[1] if isinstance(e.exponent, tuple)
+                        else abs(e.exponent - total) <= half_width)
+    return list({e.name: e for e in fits if inside(e)}.values())
+
+
+def match(catalogue: tuple[EffectConfig, ...], reading: Reading, total: float, half_width: float,
+          same_sign: bool) -> EffectConfig | None:
+    """The entry a total exponent ``total`` +- ``half_width`` names: the only one it is
+    :func:`consistent` with; None when it is consistent with none or with several (an interval
+    that holds two effects does not tell them apart)."""
+    found = consistent(catalogue, reading, total, half_width, same_sign)
+    return found[0] if len(found) == 1 else None
 
 
 def effect_entry(equation: Equation, component: int, function: int, gamma: float, theta: float,

@@ -7,7 +7,7 @@ its component: ``c v|v|^-0.3`` is 0.7 on ``v``) gets an interval from the bootst
 deviations, so that a trial falling into another optimum does not widen it) of the trials' exponents, and
 never narrower than the catalogue's resolution +-0.2 (the trials see noise and time blocks, not
 the bias of the weak-form estimate or of a smoothed law). An entry names it only when that interval holds the
-catalogue's exponent (:func:`.catalogue.match`); nothing is moved into an interval. A hypothesis
+catalogue's exponent and no other entry's (:func:`.catalogue.match`); nothing is moved into an interval. A hypothesis
 whose exponent leaves the sane range (:data:`.hypotheses.SANE_EXPONENT`) or never left its start
 (no step was accepted: the exponent is not estimated), or whose interval is wider than
 :data:`STABLE_HALF_WIDTH` or rests on fewer than half the trials, is not an effect.
@@ -75,15 +75,18 @@ def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypoth
         moved = gamma != h.start
         ok = bool(is_sane[c]) and moved and half <= STABLE_HALF_WIDTH
         same_sign = h.kind == "multiplicative" or float(original.theta[0, c, s]) * float(nominal[h.component]) > 0
-        entry = catalogue.match(entries, reading, total, half, same_sign) if ok else None
+        found = catalogue.consistent(entries, reading, total, half, same_sign) if ok else []
+        entry = found[0] if len(found) == 1 else None
         names.append(catalogue.NOT_CATALOGUED if entry is None else entry.name)
         admissible.append(ok)
-        details.append(_details(entry, reading, roles, total, half, ok))
+        details.append(_details(entry, reading, roles, total, half, ok, [e.name for e in found]))
     return Naming(names, torch.tensor(admissible, device=original.gamma.device), details)
 
 
-def _details(entry, reading: catalogue.Reading, roles: catalogue.Roles, total: float, half: float, ok: bool) -> dict:
-    """What the report says of one hypothesis's name (see :class:`~.report.EquationGap`)."""
+def _details(entry, reading: catalogue.Reading, roles: catalogue.Roles, total: float, half: float, ok: bool,
+             consistent: list[str]) -> dict:
+    """What the report says of one hypothesis's name (see :class:`~.report.EquationGap`);
+    ``consistent``: the entries its interval holds (a name needs exactly one)."""
     on = reading.signal or "its adjustment"
     measured = f"exponent {total:.2f} ± {half:.2f} on {on}"
     if entry is not None:
@@ -91,6 +94,8 @@ def _details(entry, reading: catalogue.Reading, roles: catalogue.Roles, total: f
         text = f"{entry.name} ({entry.domain}): total {measured}, catalogue {value}"
     elif not ok:
         text = f"power law, {measured}: not an effect (exponent out of range or unstable under the bootstrap)"
+    elif len(consistent) > 1:
+        text = f"power law, {measured} (consistent with {' and '.join(consistent)}: not told apart)"
     elif None in (reading.acts_on, reading.term, reading.depends_on):
         text = f"power law, {measured} (no catalogued effect: quantities not declared, see model.quantities)"
     else:

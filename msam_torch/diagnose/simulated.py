@@ -4,7 +4,9 @@ records whose states are not all measured (the paper's section 2 alternative).
 Which: Algorithm 1 runs on the simulated outputs (:func:`msam_torch.api.adapt`); each adjusted
 component is named from the catalogue (:mod:`.catalogue`). How far: free runs of the starting,
 theta-retuned and adapted models on the training and held-out records; the null rule
-(:mod:`.confidence`) on the held-out free-run RMSE says whether the adaptation is significant.
+(:mod:`.confidence`) on the held-out free-run RMSE says whether the adaptation is significant;
+without a significant one, "no significant gap" needs the re-fitted start's held-out free-run
+residual to look like measurement noise (:func:`.structure.whiteness`), else inconclusive.
 Where: the remaining gap of the adapted model, localised on the one-step rows of every equation
 whose target derives from a measured output: the target's derivative estimated from the data,
 the unmeasured states taken from the adapted model's free run, and the adapted structure fitted
@@ -29,7 +31,8 @@ from ..spec import Equation, ModelSpec, split_derivative
 from . import catalogue, confidence, localise, measures
 from .localise import signal_values
 from .report import EquationGap, GapReport
-from .verdict import Verdict, overall
+from .structure import whiteness
+from .verdict import Verdict, no_gap_verdict, overall
 
 RECORDS = {"train": "train", "validation": "held_out"}
 
@@ -58,6 +61,7 @@ def diagnose_simulated(plan: Plan, base_dir: Path, options, data=None, validatio
     rmse = torch.sqrt(((held_out.simulated - held_out.record.outputs) ** 2).mean((-1, -2)))  # start, retuned, adapted
     target_rms = float(torch.sqrt((held_out.record.outputs**2).mean()))
     significant = bool(confidence.significant(rmse[2], rmse[1], target_rms, options.relative, options.absolute))
+    checks = _residual_checks(held_out, spec.inputs, target_rms, options)
     step(LOGGER, "diagnose", "locating the remaining gap", 2, 3)
     series, gaps = {}, []
     for e, (eq, adapted) in enumerate(zip(spec.equations, result.equations)):
@@ -66,7 +70,7 @@ def diagnose_simulated(plan: Plan, base_dir: Path, options, data=None, validatio
         for key, run in runs.items():
             series[eq.target][f"free_run_{RECORDS[key]}"] = _trajectories(run, spec.inputs)
         gaps.append(_equation_gap(eq, adapted, models["start"][e].theta, models["retuned"][e].theta, significant,
-                                  rmse, target_rms, where["summary"], options, plan))
+                                  rmse, target_rms, where["summary"], checks, options, plan))
     kind, verdict, reasons = overall(gaps, significant, name_targets=True)
     left = [f"{g.target} where {g.where['regions'][0]['rule']}" for g in gaps if g.where["flagged_fraction"] > 0]
     if left:
@@ -80,9 +84,10 @@ def diagnose_simulated(plan: Plan, base_dir: Path, options, data=None, validatio
 
 
 def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retuned: list, significant: bool,
-                  rmse: torch.Tensor, target_rms: float, where: dict, options, plan: Plan) -> EquationGap:
+                  rmse: torch.Tensor, target_rms: float, where: dict, checks: dict, options, plan: Plan) -> EquationGap:
     """One equation's gap: ``rmse`` (3,) is the held-out free-run RMSE of the start, retuned and
-    adapted models (the group's, shared by its equations)."""
+    adapted models and ``checks`` the re-fitted start's residual checks (the group's, shared by its
+    equations)."""
     index = [i for i, a in enumerate(adapted.adjustments) if a is not None]
     texts = [f.text for f in eq.adjustments]
     spec = ModelSpec.from_config(plan.config.model)
@@ -93,9 +98,9 @@ def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retu
     shown = known[0] if known else (index[0] if index else None)
     effect = names[shown] if significant and shown is not None else None
     if not significant:
-        kind = Verdict.NO_GAP
+        kind, reasons = no_gap_verdict(checks)
     else:
-        kind = Verdict.EXPLAINED if known else Verdict.NOT_EXPLAINED
+        kind, reasons = (Verdict.EXPLAINED if known else Verdict.NOT_EXPLAINED), []
     label = lambda i: f"{eq.components[i].term.text} -> {eq.components[i].term.text}*{adapted.adjustments[i]}^gamma"
     components = [{"component": eq.components[i].term.text, "best_hypothesis": label(i), "effect": names[i],
                    "exponent": adapted.exponents[i]} for i in index]
@@ -112,6 +117,7 @@ def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retu
                      "adapted_rmse": float(rmse[2]), "relative": float(1 - rmse[2] / rmse[1]), "target_rms": target_rms,
                      "rule": {"relative": options.relative, "absolute": options.absolute}},
         structure_left=float((rmse[2] / rmse[1]) ** 2), components=components, ranking=adapted.ranking, where=where,
+        checks={**checks, "reasons": reasons},
         estimator={"evaluation": "simulation", "method": plan.config.adaptation.simulation.method,
                    "derivatives": _estimator(plan).name})
 
@@ -141,6 +147,23 @@ def _remaining_gap(plan: Plan, eq: Equation, adapted: EquationResult, run: FreeR
     where = localise.where(t, design, signals[eq.target], signal_values(eq, signals), orient="global")
     where["summary"]["model"] = where["series"]["model"] = "adapted"
     return where
+
+
+def _residual_checks(run: FreeRun, inputs, target_rms: float, options) -> dict:
+    """The re-fitted start's free-run residual on every output, each sample (independent under
+    white measurement noise), checked for whiteness (:func:`.structure.whiteness`); a residual
+    within ``options.absolute`` of the outputs' RMS passes (``negligible``)."""
+    residual = run.record.outputs - run.simulated[1]  # (M, N)
+    out = {"ljung_box_p": None, "input_correlation_p": None, "failed": []}
+    if not bool(torch.isfinite(residual).all()):
+        return {**out, "failed": ["the re-fitted start's free run diverged"]}
+    if float(residual.square().mean().sqrt()) <= options.absolute * target_rms:
+        return {**out, "negligible": True}
+    u = [v for name, v in zip(run.model.external, run.record.external.unbind(-1)) if name in inputs]
+    found = [whiteness(r, u, options.check_level) for r in residual]
+    p = lambda key: min((f[key] for f in found if f[key] is not None), default=None)
+    return {"ljung_box_p": p("ljung_box_p"), "input_correlation_p": p("input_correlation_p"),
+            "failed": list(dict.fromkeys(reason for f in found for reason in f["failed"]))}
 
 
 def _free_run_measures(run: FreeRun) -> dict:

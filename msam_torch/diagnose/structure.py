@@ -71,20 +71,36 @@ def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, o
     rows = torch.nonzero(weak.val_rows).squeeze(-1)
     apart = math.ceil((weak.val_tests.kernels.shape[-1] + reach) / weak.val_tests.stride)
     rows = rows[::apart]
-    r = residual[rows].double().cpu()
     out = {"independent_rows": int(rows.numel()), "ljung_box_p": None, "input_correlation_p": None,
            "structure_share": None, "failed": []}
     if float(residual[weak.val_rows].square().mean().sqrt()) <= negligible * weak.target_rms:
         return {**out, "negligible": True}
     if rows.numel() < FEWEST_ROWS:  # too short a record to tell: noted, not failed
         return {**out, "unchecked": f"only {rows.numel()} independent held-out rows"}
-    lags = max(1, min(LAGS, rows.numel() // 5))
-    out["ljung_box_p"] = float(acorr_ljungbox(r.numpy(), lags=[lags])["lb_pvalue"].iloc[0])
+    u = [weak.val_tests.average(weak.val_signals[name])[rows] for name in inputs]
+    out.update(whiteness(residual[rows], u, level))
+    explained, total = _explained(equation, weak, choices, original, (0,))[0]
+    out["structure_share"] = explained / total if total > 0 else 0.0
+    if out["structure_share"] > largest_structure:
+        out["failed"].append(f"the signals predict {100 * out['structure_share']:.0f} % of the re-fitted start's "
+                             "residual (nearest neighbours)")
+    return out
+
+
+def whiteness(residual: torch.Tensor, inputs: list[torch.Tensor], level: float) -> dict:
+    """Whether independent samples of the re-fitted start's residual look like white noise: the Ljung-Box
+    p-value of its autocorrelation and the Bonferroni p-value of its largest cross-correlation
+    with ``inputs`` (on the same samples) at lags up to :data:`LAGS`, each at least ``level``;
+    ``failed`` names the checks missed."""
+    r = residual.double().cpu()
     n = r.numel()
+    lags = max(1, min(LAGS, n // 5))
+    out = {"ljung_box_p": float(acorr_ljungbox(r.numpy(), lags=[lags])["lb_pvalue"].iloc[0]),
+           "input_correlation_p": None, "failed": []}
     z = (r - r.mean()) / r.std().clamp_min(torch.finfo(r.dtype).tiny)
     largest, tests = 0.0, 0
-    for name in inputs:
-        u = weak.val_tests.average(weak.val_signals[name])[rows].double().cpu()
+    for u in inputs:
+        u = u.double().cpu()
         if float(u.std()) == 0.0:
             continue
         u = (u - u.mean()) / u.std()
@@ -94,14 +110,8 @@ def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, o
             tests += 1
     if tests:
         out["input_correlation_p"] = float(min(1.0, tests * 2 * norm.sf(largest)))
-    explained, total = _explained(equation, weak, choices, original, (0,))[0]
-    out["structure_share"] = explained / total if total > 0 else 0.0
     if out["ljung_box_p"] < level:
         out["failed"].append(f"the re-fitted start's residual is autocorrelated (Ljung-Box p = {out['ljung_box_p']:.2g})")
     if out["input_correlation_p"] is not None and out["input_correlation_p"] < level:
-        out["failed"].append("the re-fitted start's residual is correlated with the inputs "
-                             f"(p = {out['input_correlation_p']:.2g})")
-    if out["structure_share"] > largest_structure:
-        out["failed"].append(f"the signals predict {100 * out['structure_share']:.0f} % of the re-fitted start's "
-                             "residual (nearest neighbours)")
+        out["failed"].append(f"the re-fitted start's residual is correlated with the inputs (p = {out['input_correlation_p']:.2g})")
     return out

@@ -45,12 +45,18 @@ def equation_verdict(significant: bool, named: bool, win_frequency: float, struc
     structure; no significant effect is "no significant gap" only when the re-fitted start's
     residual passes ``checks`` (:func:`~.structure.residual_checks`), else inconclusive."""
     if not significant:
-        if checks["failed"]:
-            return Verdict.INCONCLUSIVE, [*checks["failed"], TRY["residual"]]
-        return Verdict.NO_GAP, []
+        return no_gap_verdict(checks)
     if named and not win_frequency < options.min_win_frequency and structure_left <= options.max_structure_left:
         return Verdict.EXPLAINED, []
     return Verdict.NOT_EXPLAINED, []
+
+
+def no_gap_verdict(checks: dict) -> tuple[Verdict, list[str]]:
+    """No significant effect: "no significant gap" when the re-fitted start's residual passes its
+    ``checks``, else inconclusive with the checks it failed and what to try."""
+    if checks["failed"]:
+        return Verdict.INCONCLUSIVE, [*checks["failed"], TRY["residual"]]
+    return Verdict.NO_GAP, []
 
 
 def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:

@@ -30,6 +30,7 @@ TABLEAUS = {
     "rk4": ((0, 2, 4, 6), ((), (1 / 3,), (-1 / 3, 1.0), (1.0, -1.0, 1.0)), (0.125, 0.375, 0.375, 0.125)),
 }
 SERIAL_ELEMENTS = 32768  # batches of fewer state values are simulated on one thread (torch's grain size)
+READ_BEFORE = 1e-6  # a step's last stage reads the external signals this share of a step before it
 
 
 def simulate(model: SystemModel, record: Record, p: Parameters, x0: torch.Tensor, method: str = "rk4",
@@ -76,14 +77,18 @@ def _runge_kutta(model: SystemModel, p: Parameters, record: Record, x0: torch.Te
     """The explicit Runge-Kutta loop on the grid ``t0 + i h`` (h = ``step`` or the sample period
     over ``substeps``), states at the record's times (interpolated linearly between grid points
     that miss them): (B, N, S). The external signals are interpolated at all stage times at once;
-    a stage costs the model's per-stage operations."""
+    a stage costs the model's per-stage operations. A stage at the end of a step reads the external
+    signals just before it (their left limit): a held input that switches there is not read by
+    the step it ends."""
     offsets, stages, weights = tableau
     t = record.t
     h = (t[1] - t[0]) / substeps if step is None else torch.as_tensor(step, dtype=t.dtype, device=t.device)
     steps = int(torch.ceil((t[-1] - t[0]) / h - 1e-9))
     keys = torch.tensor([6 * i + offset for i in range(steps) for offset in offsets], device=t.device)
     stage_times = t[0] + keys.to(t.dtype) * (h / 6)  # in the loop's order
-    rate = model.stage_rates(p, stage_times, record.at(stage_times))
+    ends = torch.tensor([offset == 6 for _ in range(steps) for offset in offsets], device=t.device)
+    read_at = torch.where(ends, stage_times - h * READ_BEFORE, stage_times)  # a step's last stage reads its own input
+    rate = model.stage_rates(p, stage_times, record.at(read_at))
     func = guarded(rate)
     coefficients = [[h * a for a in row] for row in stages]
     weights = [(h * b, b) for b in weights]
