@@ -89,18 +89,20 @@ def kinking(spec: ModelSpec) -> dict:
 
 
 def _signals(measured: dict, every: int, band: float, data: DataConfig, spec: ModelSpec, dtype,
-             estimator: DerivativeEstimator, exact: bool, source: str) -> dict:
-    """Decimated measured signals (held inputs as their quadrature values, :mod:`~msam_torch.hold`),
-    the derivatives the model reads that they lack, and each input's assumed hold."""
+             estimator: DerivativeEstimator, exact: bool, source: str) -> tuple[dict, dict]:
+    """Decimated measured signals (held inputs as their quadrature values, :mod:`~msam_torch.hold`)
+    with the derivatives the model reads that they lack; and how they were formed (the derivative
+    estimates, each input's assumed hold, the kink-corrected signals)."""
     t = measured["t"][::every]
     measured, held, kinks = hold.represent(measured, spec.inputs, data.input_hold, kinking(spec))
     kept = {k: decimate(v, every) for k, v in measured.items() if k != "t"}
     if exact:  # every signal given (noise-free simulation): nothing to estimate
-        return {"t": torch.tensor(t, dtype=dtype), "derivatives": "given", "input_hold": held, "kinks": kinks,
-                **{k: torch.tensor(np.ascontiguousarray(v), dtype=dtype) for k, v in kept.items()}}
+        return ({"t": torch.tensor(t, dtype=dtype), **{k: torch.tensor(np.ascontiguousarray(v), dtype=dtype)
+                                                        for k, v in kept.items()}},
+                {"derivatives": "given", "input_hold": held, "kinks_corrected": kinks})
     dataset = build_dataset(t, kept, data, spec, {}, dtype, source, InBand(estimator, min(band * every, 0.45)),
                             keep_measured=True)
-    return {**dataset.signals, "derivatives": dataset.info["derivatives"], "input_hold": held, "kinks": kinks}
+    return dataset.signals, {"derivatives": dataset.info["derivatives"], "input_hold": held, "kinks_corrected": kinks}
 
 
 def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset | None,
@@ -121,15 +123,12 @@ def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset 
     build = lambda d, source: _signals(_measured(d), every, DERIVATIVE_MARGIN * band, data, spec, dtype, estimator,
                                        exact, source)
     try:
-        signals = build(train, "training data")
-        held = None if held_out is None else build(held_out, "held-out data")
+        signals, formed = build(train, "training data")
+        held = None if held_out is None else build(held_out, "held-out data")[0]
     except DataError as error:
         raise DataError(f"after decimation by {every}: {error}") from None
-    derivatives, input_hold, kinks = signals.pop("derivatives"), signals.pop("input_hold"), signals.pop("kinks")
-    signals, held = ({k: v.to(device) for k, v in d.items() if k not in ("derivatives", "input_hold", "kinks")}
-                     if d is not None else None for d in (signals, held))
+    signals, held = ({k: v.to(device) for k, v in d.items()} if d is not None else None for d in (signals, held))
     info = {"band_edge": band / dt, "band_edges": {k: v / dt for k, v in edges.items()}, "half_width_rule": rule,
             "decimation": every, "derivative_cutoff": min(DERIVATIVE_MARGIN * band, 0.45) / dt,
-            "weak_form_signals": "measured (unsmoothed)" if not exact else "given (exact)", "derivatives": derivatives,
-            "input_hold": input_hold, "kinks_corrected": kinks}
+            "weak_form_signals": "measured (unsmoothed)" if not exact else "given (exact)", **formed}
     return Estimation(signals, held, half_width, every, info)

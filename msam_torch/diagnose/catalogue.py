@@ -146,7 +146,11 @@ def match(catalogue: tuple[EffectConfig, ...], reading: Reading, total: float, h
     """The entry a total exponent ``total`` +- ``half_width`` names: the only one it is
     :func:`consistent` with; None when it is consistent with none or with several (an interval
     that holds two effects does not tell them apart)."""
-    found = consistent(catalogue, reading, total, half_width, same_sign)
+    return sole(consistent(catalogue, reading, total, half_width, same_sign))
+
+
+def sole(found: list[EffectConfig]) -> EffectConfig | None:
+    """The entry that names a fit consistent with ``found``: the only one, else None."""
     return found[0] if len(found) == 1 else None
 
 

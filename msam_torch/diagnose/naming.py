@@ -76,7 +76,7 @@ def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypoth
         ok = bool(is_sane[c]) and moved and half <= STABLE_HALF_WIDTH
         same_sign = h.kind == "multiplicative" or float(original.theta[0, c, s]) * float(nominal[h.component]) > 0
         found = catalogue.consistent(entries, reading, total, half, same_sign) if ok else []
-        entry = found[0] if len(found) == 1 else None
+        entry = catalogue.sole(found)
         names.append(catalogue.NOT_CATALOGUED if entry is None else entry.name)
         admissible.append(ok)
         details.append(_details(entry, reading, roles, total, half, ok, [e.name for e in found]))

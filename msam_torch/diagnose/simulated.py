@@ -159,7 +159,7 @@ def _residual_checks(run: FreeRun, inputs, target_rms: float, options) -> dict:
         return {**out, "failed": ["the re-fitted start's free run diverged"]}
     if float(residual.square().mean().sqrt()) <= options.absolute * target_rms:
         return {**out, "negligible": True}
-    u = [v for name, v in zip(run.model.external, run.record.external.unbind(-1)) if name in inputs]
+    u = list(_inputs(run, inputs).values())
     found = [whiteness(r, u, options.check_level) for r in residual]
     p = lambda key: min((f[key] for f in found if f[key] is not None), default=None)
     return {"ljung_box_p": p("ljung_box_p"), "input_correlation_p": p("input_correlation_p"),
@@ -179,4 +179,9 @@ def _free_run_measures(run: FreeRun) -> dict:
 def _trajectories(run: FreeRun, inputs) -> dict:
     return {"t": run.record.t, "measured": {o: run.record.outputs[k] for k, o in enumerate(run.outputs)},
             "simulated": {o: run.simulated[:, k] for k, o in enumerate(run.outputs)},
-            "inputs": {u: v for u, v in zip(run.model.external, run.record.external.unbind(-1)) if u in inputs}}
+            "inputs": _inputs(run, inputs)}
+
+
+def _inputs(run: FreeRun, inputs) -> dict:
+    """The record's measured inputs by name."""
+    return {u: v for u, v in zip(run.model.external, run.record.external.unbind(-1)) if u in inputs}

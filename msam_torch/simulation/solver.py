@@ -84,10 +84,11 @@ def _runge_kutta(model: SystemModel, p: Parameters, record: Record, x0: torch.Te
     t = record.t
     h = (t[1] - t[0]) / substeps if step is None else torch.as_tensor(step, dtype=t.dtype, device=t.device)
     steps = int(torch.ceil((t[-1] - t[0]) / h - 1e-9))
-    keys = torch.tensor([6 * i + offset for i in range(steps) for offset in offsets], device=t.device)
-    stage_times = t[0] + keys.to(t.dtype) * (h / 6)  # in the loop's order
-    ends = torch.tensor([offset == 6 for _ in range(steps) for offset in offsets], device=t.device)
-    read_at = torch.where(ends, stage_times - h * READ_BEFORE, stage_times)  # a step's last stage reads its own input
+    offset = torch.tensor(offsets, device=t.device)
+    keys = (6 * torch.arange(steps, device=t.device).unsqueeze(-1) + offset).flatten()  # in the loop's order
+    stage_times = t[0] + keys.to(t.dtype) * (h / 6)
+    ends = (offset == 6).repeat(steps)  # a step's last stage reads its own input
+    read_at = torch.where(ends, stage_times - h * READ_BEFORE, stage_times)
     rate = model.stage_rates(p, stage_times, record.at(read_at))
     func = guarded(rate)
     coefficients = [[h * a for a in row] for row in stages]
