@@ -121,5 +121,6 @@ def test_no_gap_by_simulation_needs_a_residual_that_looks_like_noise(tmp_path, p
     assert report.verdict.split(";")[0] == verdict, report.reasons
     if power == 0.5:
         assert checks["ljung_box_p"] < 1e-6 and any("autocorrelated" in r for r in report.reasons), checks
+        assert not any("--half-width" in r for r in report.reasons)  # no test functions by simulation
     else:
         assert checks["ljung_box_p"] > 0.01 and checks["failed"] == [] and report.reasons == (), checks

@@ -32,7 +32,7 @@ from . import catalogue, confidence, localise, measures
 from .localise import signal_values
 from .report import EquationGap, GapReport
 from .structure import whiteness
-from .verdict import Verdict, no_gap_verdict, overall
+from .verdict import TRY, Verdict, no_gap_verdict, overall
 
 RECORDS = {"train": "train", "validation": "held_out"}
 
@@ -98,7 +98,7 @@ def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retu
     shown = known[0] if known else (index[0] if index else None)
     effect = names[shown] if significant and shown is not None else None
     if not significant:
-        kind, reasons = no_gap_verdict(checks)
+        kind, reasons = no_gap_verdict(checks, TRY["simulated residual"])  # no test functions to widen
     else:
         kind, reasons = (Verdict.EXPLAINED if known else Verdict.NOT_EXPLAINED), []
     label = lambda i: f"{eq.components[i].term.text} -> {eq.components[i].term.text}*{adapted.adjustments[i]}^gamma"

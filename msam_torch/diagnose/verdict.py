@@ -34,7 +34,9 @@ NO_INFORMATION = 1.0  # a free run whose NRMSE reaches this is no closer to the 
 TRY = {"estimation": "try another --half-width or a held-out record from another excitation",
        "diverged": "try --solver dopri5 or a smaller --solver-step; a model that diverges on its own is not a fit",
        "residual": "the starting model misses something the candidates do not express: add candidate adjustments "
-                   "or components, or try another --half-width"}
+                   "or components, or try another --half-width",
+       "simulated residual": "the starting model misses something the candidates do not express: add candidate "
+                             "adjustments or components"}
 
 
 def equation_verdict(significant: bool, named: bool, win_frequency: float, structure_left: float,
@@ -51,11 +53,11 @@ def equation_verdict(significant: bool, named: bool, win_frequency: float, struc
     return Verdict.NOT_EXPLAINED, []
 
 
-def no_gap_verdict(checks: dict) -> tuple[Verdict, list[str]]:
+def no_gap_verdict(checks: dict, hint: str = TRY["residual"]) -> tuple[Verdict, list[str]]:
     """No significant effect: "no significant gap" when the re-fitted start's residual passes its
-    ``checks``, else inconclusive with the checks it failed and what to try."""
+    ``checks``, else inconclusive with the checks it failed and ``hint``, what to try."""
     if checks["failed"]:
-        return Verdict.INCONCLUSIVE, [*checks["failed"], TRY["residual"]]
+        return Verdict.INCONCLUSIVE, [*checks["failed"], hint]
     return Verdict.NO_GAP, []
 
 
