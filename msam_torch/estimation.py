@@ -25,8 +25,8 @@ from .bandwidth import band_edge, decimate
 from .config import DataConfig
 from .data import Dataset, build_dataset
 from .derivatives import DerivativeEstimator, InBand
-from .errors import DataError
-from .spec import ModelSpec, derivative_name, split_derivative
+from .errors import DataError, MSAMError
+from .spec import Equation, ModelSpec, derivative_name, split_derivative
 from .weak import half_width_for
 
 SAMPLES_PER_PERIOD = 7  # decimation keeps the band edge below 1/7 of the sampling rate
@@ -78,13 +78,49 @@ def _measured(dataset: Dataset) -> dict[str, np.ndarray]:
     return {k: v.detach().cpu().numpy() for k, v in given.items()}
 
 
-def kinking(spec: ModelSpec) -> dict:
-    """Per signal whose rate an equation gives (``T`` of ``T_dot``, ``x_dot`` of ``x_ddot``), the
-    inputs that equation reads: where one of them switches, the signal has a kink."""
+@dataclass(frozen=True)
+class Kink:
+    """The starting model's rate of a signal (``T`` of ``T_dot``), read where a held input it reads
+    switches (:mod:`~msam_torch.hold`): the rate's jump and its slope in the signal."""
+
+    signal: str
+    inputs: tuple[str, ...]  # the inputs the rate reads
+    equation: Equation
+    theta: torch.Tensor  # (Q,) nominal
+
+    def rate(self, values: dict) -> torch.Tensor:
+        return sum(th * c.term(values) for th, c in zip(self.theta, self.equation.components))
+
+    def at(self, measured: dict, k: np.ndarray, switching: list) -> tuple[np.ndarray, np.ndarray] | None:
+        """At the switch samples ``k``: the rate with the inputs of ``switching`` after the switch less
+        the rate before, and the rate's slope in the signal (both at the sample's state); None where
+        the rate reads a signal the record lacks or cannot be evaluated there."""
+        names = set().union(*(c.term.names for c in self.equation.components))
+        if not names <= set(measured):
+            return None
+        after = {n: torch.as_tensor(measured[n][k], dtype=torch.float64) for n in names}
+        before = {**after, **{u: torch.as_tensor(measured[u][k - 1], dtype=torch.float64) for u in switching}}
+        own = after[self.signal].clone().requires_grad_(True) if self.signal in names else None
+        try:
+            rate = self.rate({**after, **({} if own is None else {self.signal: own})})
+            jump = rate.detach() - self.rate(before)
+        except MSAMError:
+            return None
+        slope = torch.zeros_like(jump) if own is None else torch.autograd.grad(rate.sum(), own, allow_unused=True)[0]
+        slope = torch.zeros_like(jump) if slope is None else slope
+        return jump.broadcast_to(k.shape).numpy(), slope.broadcast_to(k.shape).numpy()
+
+
+def kinking(spec: ModelSpec) -> dict[str, Kink]:
+    """Per signal whose rate an equation gives (``T`` of ``T_dot``, ``x_dot`` of ``x_ddot``) and whose
+    equation reads an input: its :class:`Kink` (where the input switches, the signal has a kink)."""
     out = {}
     for equation in spec.equations:
         base, order = split_derivative(equation.target)
-        out[derivative_name(base, order - 1)] = [u for u in spec.inputs if u in equation.signals]
+        inputs = tuple(u for u in spec.inputs if u in equation.signals)
+        if inputs:
+            signal = derivative_name(base, order - 1)
+            out[signal] = Kink(signal, inputs, equation, spec.theta(equation))
     return out
 
 

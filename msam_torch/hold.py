@@ -15,13 +15,22 @@ cell averages ``(u_{k-1} + u_k) / 2`` (the first two terms alone) are second ord
 bump of 5 samples' half-width: 0.3 % error instead of 2.4 %).
 
 Where a held input switches, the rate of a state whose equation reads it jumps: the state has a
-kink there, and the trapezoid rule on any function ``g`` of it misses ``dt^2 [g'] / 12`` at that
-sample (Euler-Maclaurin, ``[g']`` the jump of the slope), whatever the test function's width. The
-kink's slope jump is read from the data, ``[x'] ~ (x_{k+1} - 2 x_k + x_{k-1}) / dt``, and the
-state's sample there moved by ``dt [x'] / 12`` (:func:`kink_corrected`): for every function of
-the state at once, the trapezoid rule then gets the missing term to first order. On a first-order
-heated body under a PRBS (sampled at 0.1-0.3 of its time constant) the weak-form equation error of
-the true model falls from 1.5 % to 0.3 % of the target's RMS (half-widths of 10-20 samples).
+kink there, and the trapezoid rule on any function ``g`` of it misses ``[g'] tau^2 ((r/2)
+coth(r/2) - 1)`` at that sample (``[g']`` the jump of the slope, ``tau`` the time constant at which
+the state relaxes after it, ``r = dt / tau``; ``dt^2 [g'] / 12`` when ``r`` is small: the
+Euler-Maclaurin term), whatever the test function's width. The state's sample at the switch moved
+by ``dt [x'] rho(r) / 12``, ``rho(r) = 12 ((r/2) coth(r/2) - 1) / r^2``, restores it for every
+function of the state at once, to first order (:func:`kink_corrected`). The jump ``[x']`` and the
+rate's slope ``-1/tau`` are the starting model's (:class:`~msam_torch.estimation.Kink`): the
+rate after the switch less the rate before, at the same state. The unmodelled effect is a function
+of the states, which do not jump, so the jump is the input terms' alone, known to the accuracy of
+their coefficients, and free of the noise that a second difference of the samples doubles (and of
+its bias where the state relaxes within a few samples: a second difference sees ``(1 - e^-r) / r``
+of the jump). A state that settles within half a sample (``r >``
+:data:`SAMPLED`) is left as it is: its transient is not sampled, and the first-order correction
+overshoots. On a first-order heated body under a PRBS (sampled at 0.1-0.3 of its time constant)
+the weak-form equation error of the true model falls from 1.5 % to 0.3 % of the target's RMS
+(half-widths of 10-20 samples).
 
 ``data.input_hold``: ``zoh``, ``linear`` (the samples of a continuous signal) or ``auto``: held
 for an input that changes at no more than :data:`HELD_SHARE` of its sample steps (a sampled
@@ -33,7 +42,7 @@ from __future__ import annotations
 import numpy as np
 
 HELD_SHARE = 0.5
-RESOLVED = 0.5  # a kink stands out of the second differences by at least 1 / RESOLVED
+SAMPLED = 2.0  # kinks are corrected where the state's time constant is at least 1 / SAMPLED samples
 
 
 def is_held(u: np.ndarray) -> bool:
@@ -50,40 +59,39 @@ def quadrature_values(u: np.ndarray) -> np.ndarray:
     return (-p[:-3] + 13.0 * p[1:-2] + 13.0 * p[2:-1] - p[3:]) / 24.0
 
 
-def kink_corrected(x: np.ndarray, switches: np.ndarray) -> np.ndarray | None:
-    """``x`` with each interior sample at a switch (boolean mask) moved by its second difference
-    over 12: the trapezoid rule's missing term at a kink (module docstring). None where the data
-    show no resolved kinks: the second differences one sample after the switches (the state's own
-    curvature, or noise) are, in median, at least :data:`RESOLVED` of those at the switches (a
-    state that settles within a sample, or a noisy one: the jump read from them would be wrong)."""
-    x = np.asarray(x, dtype=float)
-    second = np.zeros_like(x)
-    second[1:-1] = x[2:] - 2.0 * x[1:-1] + x[:-2]
-    inner = switches.copy()
-    inner[[0, -1]] = False
-    k = np.flatnonzero(inner)
-    after = np.setdiff1d(k + 1, k)
-    after = after[after < x.size - 1]
-    if k.size == 0 or after.size == 0 or np.median(np.abs(second[after])) >= RESOLVED * np.median(np.abs(second[k])):
+def kink_corrected(x: np.ndarray, k: np.ndarray, jump: np.ndarray, slope: np.ndarray, dt: float) -> np.ndarray | None:
+    """``x`` with its samples ``k`` (interior switches) moved by ``dt jump rho(r) / 12``, ``r = dt |slope|``
+    (module docstring): the trapezoid rule's missing term at a kink of slope jump ``jump`` after which
+    the state relaxes at rate ``slope``. Only where ``r`` <= :data:`SAMPLED`; None where no sample moves."""
+    r = dt * np.abs(slope)
+    sampled = np.isfinite(jump) & (r <= SAMPLED)
+    if not sampled.any():
         return None
-    out = x.copy()
-    out[k] += second[k] / 12.0
+    half = np.maximum(r / 2.0, 1e-4)
+    rho = np.where(r < 1e-3, 1.0, 12.0 * (half / np.tanh(half) - 1.0) / np.maximum(r, 1e-3) ** 2)
+    out = np.asarray(x, dtype=float).copy()
+    out[k[sampled]] += dt * jump[sampled] * rho[sampled] / 12.0
     return out
 
 
 def represent(measured: dict, inputs, rule: str, kinks: dict | None = None) -> tuple[dict, dict, list]:
     """``measured`` with every held input (``rule``: ``zoh``, ``linear`` or ``auto``, see the module)
-    replaced by its quadrature values and every signal of ``kinks`` (signal -> the inputs its rate
-    reads) corrected where one of them, held, switches and the kinks are resolved; the behaviour
-    assumed per input, and the signals corrected."""
+    replaced by its quadrature values and every signal of ``kinks`` (signal -> its
+    :class:`~msam_torch.estimation.Kink`) corrected where a held input its rate reads switches; the
+    behaviour assumed per input, and the signals corrected."""
     behaviour = {u: ("zoh" if rule == "zoh" or (rule == "auto" and is_held(measured[u])) else "linear")
                  for u in inputs if u in measured}
     out = {k: quadrature_values(v) if behaviour.get(k) == "zoh" else v for k, v in measured.items()}
-    switches = {u: np.diff(measured[u], prepend=measured[u][:1]) != 0 for u, b in behaviour.items() if b == "zoh"}
+    held = [u for u, b in behaviour.items() if b == "zoh"]
     corrected = []
-    for x, read in (kinks or {}).items():
-        switching = [switches[u] for u in read if u in switches]
-        fixed = kink_corrected(measured[x], np.any(switching, axis=0)) if x in measured and switching else None
+    for x, kink in (kinks or {}).items():
+        switching = [u for u in kink.inputs if u in held]
+        if x not in measured or not switching:
+            continue
+        k = np.flatnonzero(np.any([np.diff(measured[u], prepend=measured[u][:1]) != 0 for u in switching], axis=0))
+        k = k[(k > 0) & (k < measured[x].size - 1)]
+        found = kink.at(measured, k, switching) if k.size else None
+        fixed = None if found is None else kink_corrected(measured[x], k, *found, float(np.median(np.diff(measured["t"]))))
         if fixed is not None:
             out[x] = fixed
             corrected.append(x)

@@ -15,6 +15,7 @@ from msam_torch.cli import main
 from msam_torch.derivatives import BAND
 from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
 from msam_torch.weak import HALF_AMPLITUDE
+from msam_torch.diagnose.confidence import told_apart
 from msam_torch.diagnose.verdict import equation_verdict, free_run_reasons
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
@@ -105,10 +106,27 @@ def test_a_re_fit_worse_only_within_the_free_runs_resolution_is_no_reason():
 
 
 def test_no_gap_needs_a_residual_that_looks_like_noise():
-    clean = {"failed": []}
-    assert equation_verdict(False, False, float("nan"), 0.0, clean, DiagnoseOptions()) == (Verdict.NO_GAP, [])
-    kind, reasons = equation_verdict(False, False, float("nan"), 0.0, {"failed": ["autocorrelated"]}, DiagnoseOptions())
+    clean, sure = {"failed": []}, {"win_frequency": float("nan"), "apart_p": 0.0}
+    assert equation_verdict(False, False, sure, 0.0, clean, DiagnoseOptions()) == (Verdict.NO_GAP, [])
+    kind, reasons = equation_verdict(False, False, sure, 0.0, {"failed": ["autocorrelated"]}, DiagnoseOptions())
     assert kind is Verdict.INCONCLUSIVE and reasons[0] == "autocorrelated" and "candidate" in reasons[1]
+
+
+def test_a_name_needs_to_predict_the_held_out_rows_better_than_another_name():
+    """The block bootstrap of the held-out errors: a winner whose errors are 0.9 of the runner-up's
+    on every row is told apart (no resample favours the runner-up); two that differ by independent
+    scatter are not (p > 0.05), and the verdict is then "not explained", naming the runner-up."""
+    rng, generator = np.random.default_rng(0), torch.Generator().manual_seed(0)
+    base = torch.tensor(rng.standard_normal(400))
+    assert told_apart(torch.stack([0.9 * base, base]), 0, 1, 10, generator) == 0.0
+    noisy = base + 0.05 * torch.tensor(rng.standard_normal((2, 400)))  # neither better than the other
+    p = told_apart(noisy, 0, 1, 10, generator)
+    assert 0.05 < p < 0.95
+    sure = {"win_frequency": 1.0, "apart_p": p, "rival": "power-law damping"}
+    kind, reasons = equation_verdict(True, True, sure, 0.0, {"failed": []}, DiagnoseOptions())
+    assert kind is Verdict.NOT_EXPLAINED and "not told apart from power-law damping" in reasons[0]
+    assert equation_verdict(True, True, {**sure, "apart_p": 0.01}, 0.0, {"failed": []}, DiagnoseOptions())[0] \
+        is Verdict.EXPLAINED
 
 
 def test_a_gap_the_candidates_cannot_express_is_not_called_no_gap():

@@ -5,12 +5,16 @@ no name without declared quantities; a config's own effect; power-law damping of
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 from scipy.integrate import solve_ivp
 
 from msam_torch.config import load_config
 from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
 from msam_torch.diagnose import catalogue
+from msam_torch.diagnose.bootstrap import Bootstrap
 from msam_torch.diagnose.catalogue import bundled
+from msam_torch.diagnose.hypotheses import Fitted
+from msam_torch.diagnose.naming import half_width
 from msam_torch.errors import ConfigError
 from msam_torch.spec import ModelSpec
 
@@ -167,3 +171,21 @@ def test_a_name_needs_the_only_entry_the_interval_holds(total, named):
     entry = catalogue.match(catalogue.entries(), speed, total, 0.2, same_sign=True)
     assert (entry.name if entry else None) == named
     assert len(found) == (1 if named else 2), found
+
+
+def test_a_trial_that_never_left_its_warm_start_has_no_exponent_of_its_own():
+    """The interval's half-width spreads over the trials that moved: five trials stuck at the
+    original fit (1.0) would shrink the median absolute deviation of the eleven that moved; with
+    fewer than two moving, no step near the fit improved it, and the tolerance (0.2) is left."""
+    moved = torch.tensor([0.7, 0.8, 0.85, 0.9, 0.95, 1.05, 1.1, 1.15, 1.2, 1.3, 1.5], dtype=torch.float64)
+    def boot(gammas):
+        t = gammas.shape[0]
+        fitted = Fitted(gammas.view(t, 1, 1), torch.zeros(t, 1, 1), torch.zeros(t, 1, 0), torch.zeros(t, 1),
+                        torch.zeros(t, 1, dtype=torch.bool))
+        return Bootstrap(None, fitted, torch.ones(t, 1))
+    spread = float(1.4826 * 2 * (moved - moved.median()).abs().median())
+    stuck = torch.ones(5, dtype=torch.float64)
+    counted = torch.cat([moved, stuck])
+    assert half_width(boot(counted), 0, 0, 1.0) == pytest.approx(spread) and spread > 0.25
+    assert float(1.4826 * 2 * (counted - counted.median()).abs().median()) < 0.8 * spread
+    assert half_width(boot(torch.cat([moved[:1], stuck])), 0, 0, 1.0) == 0.2

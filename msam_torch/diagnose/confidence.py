@@ -1,5 +1,6 @@
 """How sure a selection is: the null-verdict rule for a significant effect, the bootstrap trials'
-outcomes and how often the named effect wins them, the margin to the best other name.
+outcomes and how often the named effect wins them, the margin to the best other name and whether
+the held-out data tell the two apart.
 
 Null-verdict rule (docs/design.md section 3): an effect is reported only if its held-out RMSE beats the
 theta-refitted starting model by at least ``relative`` (5 %) and by ``absolute`` (0.2 %) of the
@@ -11,6 +12,8 @@ import torch
 
 from .options import DiagnoseOptions
 from .verdict import Verdict
+
+RESAMPLES = 1000  # block-bootstrap resamples of the held-out rows (:func:`told_apart`)
 
 
 def significant(rmse: torch.Tensor, retuned: torch.Tensor, target_rms: float, relative: float = 0.05,
@@ -39,16 +42,33 @@ def outcomes(names: list[list[str]], rmse: torch.Tensor, is_effect: torch.Tensor
     return found
 
 
+def told_apart(errors: torch.Tensor, best: int, rival: int, blocks: int, generator: torch.Generator) -> float:
+    """The share of block-bootstrap resamples of the held-out rows on which hypothesis ``rival``
+    predicts at least as well as ``best`` (sum of squared ``errors`` (C, M)): a one-sided p-value
+    that ``best`` is no better. :data:`RESAMPLES` draws of ``blocks`` contiguous blocks of rows
+    (rows within a test function's reach share their errors), each drawn with replacement."""
+    square = lambda c: torch.stack([part.square().sum() for part in torch.tensor_split(errors[c], blocks)])
+    draws = torch.randint(0, blocks, (RESAMPLES, blocks), generator=generator).to(errors.device)
+    return float((square(rival)[draws].sum(-1) <= square(best)[draws].sum(-1)).double().mean())
+
+
 def summary(rmse: torch.Tensor, names: list[str], best: int, is_significant: bool, outcome: str,
-            trial_outcomes: list[str]) -> dict:
+            trial_outcomes: list[str], is_effect: torch.Tensor, errors: torch.Tensor, blocks: int,
+            generator: torch.Generator) -> dict:
     """The report's ``confidence``: ``margin`` (held-out RMSE of the best hypothesis with another
-    name, relative to the chosen one's), ``runner_up``, ``win_frequency`` of ``outcome`` over the
-    bootstrap trials (NaN without trials) and the ``outcomes`` counted."""
+    name, relative to the chosen one's), ``runner_up``; ``rival``, the best effect hypothesis
+    (``is_effect``) with another name (an uncatalogued power law too), and ``apart_p`` (:func:`told_apart` on the held-out
+    ``errors`` (C, M); 0 without a rival); ``win_frequency`` of ``outcome`` over the bootstrap trials
+    (NaN without trials) and the ``outcomes`` counted."""
     frequency = win_frequency(trial_outcomes, outcome) if trial_outcomes else float("nan")
     ranked = [int(c) for c in torch.argsort(rmse) if torch.isfinite(rmse[c])]
     runner = next((c for c in ranked if names[c] != names[best] and c != 0), None) if is_significant else best
     reference = rmse[best] if is_significant else rmse[0]
     margin = float((rmse[runner] - reference) / reference) if runner is not None and reference > 0 else float("inf")
+    rival = next((c for c in ranked if names[c] != names[best] and c != 0 and bool(is_effect[c])), None) \
+        if is_significant else None
     return {"margin": margin, "runner_up": names[runner] if runner is not None and is_significant else None,
+            "rival": None if rival is None else names[rival],
+            "apart_p": 0.0 if rival is None else told_apart(errors, best, rival, blocks, generator),
             "win_frequency": frequency, "bootstrap_trials": len(trial_outcomes),
             "outcomes": {o: trial_outcomes.count(o) for o in sorted(set(trial_outcomes))}}

@@ -214,10 +214,14 @@ def _named(naming: dict) -> list[str]:
 
 
 def margin(confidence: dict) -> str:
-    """The held-out RMSE margin to the best hypothesis with another name, if there is one."""
+    """The held-out RMSE margin to the best hypothesis with another name, if there is one, and how
+    often the best effect hypothesis with another name predicts as well (:func:`.confidence.told_apart`)."""
     if confidence["runner_up"] is None:
         return "no competing hypothesis with another name"
-    return f"margin {100 * confidence['margin']:.1f} % to {confidence['runner_up']}"
+    rival, runner = confidence.get("rival"), confidence["runner_up"]
+    told = "" if rival is None else f"{', it' if rival == runner else f'; {rival}'} as good in " \
+        f"{100 * confidence['apart_p']:.0f} % of held-out resamples"
+    return f"margin {100 * confidence['margin']:.1f} % to {runner}" + told
 
 
 def _percent(share: float) -> str:

@@ -19,7 +19,7 @@ from .bootstrap import bootstrap
 from .compare import models
 from ..estimation import Estimation
 from .hypotheses import (Fitted, Hypothesis, encode, enumerate_hypotheses, exponent, extended_equation, fit,
-                         fitted_text, heldout_rmse)
+                         fitted_text, heldout_rmse, predict_rows)
 from .intervals import term_intervals
 from .localise import starting_where
 from .naming import Naming, name_hypotheses
@@ -78,15 +78,17 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     trial_outcomes = []
     if boot is not None:
         trial_outcomes = confidence.outcomes([names] * boot.rmse.shape[0], boot.rmse, is_effect, target_rms, options)
-    sure = confidence.summary(rmse, names, best, is_significant, outcome, trial_outcomes)
+    errors = predict_rows(weak.val_data, choices, original)[0][:, weak.val_rows] - weak.y_val  # (C, M') held out
+    sure = confidence.summary(rmse, names, best, is_significant, outcome, trial_outcomes, is_effect, errors,
+                              options.blocks, generator)
 
     # verdict (with the residual structure the effect leaves), and where the starting model fails
     structure = structure_left(equation, weak, choices, original, best)
     checks = residual_checks(equation, weak, choices, original, [u for u in spec.inputs if u in weak.val_signals],
                              options.check_level, options.max_residual_structure, options.absolute,
                              estimation.reach)
-    kind, reasons = equation_verdict(is_significant, outcome != catalogue.NOT_CATALOGUED, sure["win_frequency"],
-                                     structure, checks, options)
+    kind, reasons = equation_verdict(is_significant, outcome != catalogue.NOT_CATALOGUED, sure, structure, checks,
+                                     options)
     winner = best if is_significant else 0
     where = starting_where(equation, weak.signals)
 

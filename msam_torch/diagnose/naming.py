@@ -4,8 +4,8 @@
 Each effect hypothesis's *total exponent* on its signal (``gamma`` plus the power of the signal in
 its component: ``c v|v|^-0.3`` is 0.7 on ``v``) gets an interval from the bootstrap trials
 (:mod:`.bootstrap`): the original fit +- two robust standard deviations (1.4826 median absolute
-deviations, so that a trial falling into another optimum does not widen it) of the trials' exponents, and
-never narrower than the catalogue's resolution +-0.2 (the trials see noise and time blocks, not
+deviations, so that a trial falling into another optimum does not widen it) of the trials' exponents
+(a trial that never left its warm start at the original fit has none of its own), and never narrower than the catalogue's resolution +-0.2 (the trials see noise and time blocks, not
 the bias of the weak-form estimate or of a smoothed law). An entry names it only when that interval holds the
 catalogue's exponent and no other entry's (:func:`.catalogue.match`); nothing is moved into an interval. A hypothesis
 whose exponent leaves the sane range (:data:`.hypotheses.SANE_EXPONENT`) or never left its start
@@ -42,16 +42,22 @@ class Naming:
         return None if self.details[c] is None else self.details[c]["catalogue_exponent"]
 
 
-def half_width(boot: Bootstrap | None, c: int, s: int) -> float:
+def half_width(boot: Bootstrap | None, c: int, s: int, fitted: float) -> float:
     """Two robust standard deviations of hypothesis ``c``'s exponent in slot ``s`` over the trials that
-    re-fitted it, at least the catalogue's tolerance (inf when fewer than half did)."""
+    re-fitted it, at least the catalogue's tolerance (inf when fewer than half did). A trial is
+    warm-started at the original fit ``fitted``: one whose exponent never left it accepted no step
+    and has no estimate of its own, and is left out of the spread, which it would shrink (when
+    fewer than two moved, no step near the fit improved it: the tolerance)."""
     if boot is None:
         return catalogue.TOLERANCE
+    g = boot.fitted.gamma[:, c, s]
     valid = ~boot.fitted.invalid[:, c] & torch.isfinite(boot.rmse[:, c])
     if 2 * int(valid.sum()) < valid.numel() or int(valid.sum()) < 2:
         return float("inf")
-    g = boot.fitted.gamma[valid, c, s]
-    robust_std = MAD_TO_STD * float((g - g.median()).abs().median())
+    moved = g[valid & (g != fitted)]
+    if moved.numel() < 2:
+        return catalogue.TOLERANCE
+    robust_std = MAD_TO_STD * float((moved - moved.median()).abs().median())
     return max(SPREAD * robust_std, catalogue.TOLERANCE)
 
 
@@ -71,7 +77,7 @@ def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypoth
         reading = catalogue.read(roles, equation, h.component, h.function)
         gamma = float(original.gamma[0, c, s])
         total = gamma + (reading.power or 0.0)
-        half = half_width(boot, c, s)
+        half = half_width(boot, c, s, gamma)
         moved = gamma != h.start
         ok = bool(is_sane[c]) and moved and half <= STABLE_HALF_WIDTH
         same_sign = h.kind == "multiplicative" or float(original.theta[0, c, s]) * float(nominal[h.component]) > 0

@@ -25,6 +25,7 @@ class DiagnoseOptions:
     relative: float = 0.05  # null rule: held-out RMSE at least 5 % below the re-fitted starting model
     absolute: float = 0.002  # ... and by 0.2 % of the held-out target's RMS
     min_win_frequency: float = 0.5  # bootstrap share the named effect must win
+    apart_level: float = 0.05  # ... and the p-value that another name predicts the held-out data as well, at most
     max_structure_left: float = 0.25  # residual structure the effect may leave (share of the gap's)
     check_level: float = 0.01  # "no significant gap": p-values of the residual's whiteness checks at least this
     max_residual_structure: float = 0.2  # ... and nearest neighbours predict at most this share of its mean square

@@ -39,16 +39,23 @@ TRY = {"estimation": "try another --half-width or a held-out record from another
                              "adjustments or components"}
 
 
-def equation_verdict(significant: bool, named: bool, win_frequency: float, structure_left: float,
+def equation_verdict(significant: bool, named: bool, confidence: dict, structure_left: float,
                      checks: dict, options: DiagnoseOptions) -> tuple[Verdict, list[str]]:
     """One equation and its reasons: a significant effect (null rule) is explained when it has a
-    catalogue name, wins at least ``options.min_win_frequency`` of the bootstrap trials (NaN
-    without trials: not checked) and leaves at most ``options.max_structure_left`` of the residual
-    structure; no significant effect is "no significant gap" only when the re-fitted start's
-    residual passes ``checks`` (:func:`~.structure.residual_checks`), else inconclusive."""
+    catalogue name, predicts the held-out data better than the best effect hypothesis with another
+    name beyond chance (``confidence["apart_p"]`` at most ``options.apart_level``), wins at least
+    ``options.min_win_frequency`` of the bootstrap trials (NaN without trials: not checked) and
+    leaves at most ``options.max_structure_left`` of the residual structure; no significant effect
+    is "no significant gap" only when the re-fitted start's residual passes ``checks``
+    (:func:`~.structure.residual_checks`), else inconclusive."""
     if not significant:
         return no_gap_verdict(checks)
-    if named and not win_frequency < options.min_win_frequency and structure_left <= options.max_structure_left:
+    if not named:
+        return Verdict.NOT_EXPLAINED, []
+    if confidence["apart_p"] > options.apart_level:
+        return Verdict.NOT_EXPLAINED, [f"not told apart from {confidence['rival']} on the held-out data "
+                                       f"(p = {confidence['apart_p']:.2g})"]
+    if not confidence["win_frequency"] < options.min_win_frequency and structure_left <= options.max_structure_left:
         return Verdict.EXPLAINED, []
     return Verdict.NOT_EXPLAINED, []
 
