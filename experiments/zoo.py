@@ -51,12 +51,12 @@ def run_diagnosis(config: Path, train: Path, validation: Path):
 
 def _naming(gap) -> dict | None:
     """What a flagged equation's name rests on: total exponent, its bootstrap half-width, the
-    catalogue's exponent and the bootstrap trials' outcomes."""
+    catalogue's exponent, the bootstrap trials' outcomes and the rival told apart on held-out data."""
     if gap.naming is None:
         return None
-    keys = ("total_exponent", "half_width", "catalogue_exponent")
-    return {**{k: gap.naming.get(k) for k in keys}, "win_frequency": gap.confidence.get("win_frequency"),
-            "outcomes": gap.confidence.get("outcomes")}
+    keys = ("effect", "total_exponent", "half_width", "catalogue_exponent")
+    return {**{k: gap.naming.get(k) for k in keys}, **{k: gap.confidence.get(k) for k in
+                                                        ("win_frequency", "outcomes", "rival", "apart_p")}}
 
 
 class Timeout(Exception):

@@ -28,9 +28,9 @@ their coefficients, and free of the noise that a second difference of the sample
 its bias where the state relaxes within a few samples: a second difference sees ``(1 - e^-r) / r``
 of the jump). A state that settles within half a sample (``r >``
 :data:`SAMPLED`) is left as it is: its transient is not sampled, and the first-order correction
-overshoots. On a first-order heated body under a PRBS (sampled at 0.1-0.3 of its time constant)
-the weak-form equation error of the true model falls from 1.5 % to 0.3 % of the target's RMS
-(half-widths of 10-20 samples).
+overshoots. On ``x' = -a x + b u`` under a PRBS, nominal coefficients 10 % off, the correction
+leaves a tenth of the trapezoid rule's error on ``x^2`` for ``r`` from 0.04 to 1.1
+(``tests/test_hold.py``).
 
 ``data.input_hold``: ``zoh``, ``linear`` (the samples of a continuous signal) or ``auto``: held
 for an input that changes at no more than :data:`HELD_SHARE` of its sample steps (a sampled

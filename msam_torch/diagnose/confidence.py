@@ -57,9 +57,9 @@ def summary(rmse: torch.Tensor, names: list[str], best: int, is_significant: boo
             generator: torch.Generator) -> dict:
     """The report's ``confidence``: ``margin`` (held-out RMSE of the best hypothesis with another
     name, relative to the chosen one's), ``runner_up``; ``rival``, the best effect hypothesis
-    (``is_effect``) with another name (an uncatalogued power law too), and ``apart_p`` (:func:`told_apart` on the held-out
-    ``errors`` (C, M); 0 without a rival); ``win_frequency`` of ``outcome`` over the bootstrap trials
-    (NaN without trials) and the ``outcomes`` counted."""
+    (``is_effect``) with another name (an uncatalogued power law too), and ``apart_p``
+    (:func:`told_apart` on the held-out ``errors`` (C, M); 0 without a rival); ``win_frequency`` of
+    ``outcome`` over the bootstrap trials (NaN without trials) and the ``outcomes`` counted."""
     frequency = win_frequency(trial_outcomes, outcome) if trial_outcomes else float("nan")
     ranked = [int(c) for c in torch.argsort(rmse) if torch.isfinite(rmse[c])]
     runner = next((c for c in ranked if names[c] != names[best] and c != 0), None) if is_significant else best

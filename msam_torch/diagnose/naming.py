@@ -5,8 +5,9 @@ Each effect hypothesis's *total exponent* on its signal (``gamma`` plus the powe
 its component: ``c v|v|^-0.3`` is 0.7 on ``v``) gets an interval from the bootstrap trials
 (:mod:`.bootstrap`): the original fit +- two robust standard deviations (1.4826 median absolute
 deviations, so that a trial falling into another optimum does not widen it) of the trials' exponents
-(a trial that never left its warm start at the original fit has none of its own), and never narrower than the catalogue's resolution +-0.2 (the trials see noise and time blocks, not
-the bias of the weak-form estimate or of a smoothed law). An entry names it only when that interval holds the
+(a trial that never left its warm start at the original fit has none of its own), and never
+narrower than the catalogue's resolution +-0.2 (the trials see noise and time blocks, not the bias
+of the weak-form estimate or of a smoothed law). An entry names it only when that interval holds the
 catalogue's exponent and no other entry's (:func:`.catalogue.match`); nothing is moved into an interval. A hypothesis
 whose exponent leaves the sane range (:data:`.hypotheses.SANE_EXPONENT`) or never left its start
 (no step was accepted: the exponent is not estimated), or whose interval is wider than
