@@ -13,10 +13,10 @@ import torch
 from msam_torch.bandwidth import band_edge
 from msam_torch.cli import main
 from msam_torch.derivatives import BAND
-from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
+from msam_torch.diagnose import DiagnoseOptions, EquationGap, Verdict, diagnose
 from msam_torch.weak import HALF_AMPLITUDE
 from msam_torch.diagnose.confidence import told_apart
-from msam_torch.diagnose.verdict import equation_verdict, free_run_reasons
+from msam_torch.diagnose.verdict import demoted, equation_verdict, free_run_reasons, overall
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
 from bench_diagnose import records  # noqa: E402  (the benchmark's records: one source of them)
@@ -173,3 +173,21 @@ def test_inputs_are_anti_aliased_at_the_nyquist_frequency_of_a_step_over_samples
     inner = slice(1000, -1000)
     assert float((seen - low)[inner].abs().max()) < 0.01
     assert torch.equal(anti_aliased(low + high, dt, dt), low + high)
+
+
+def test_no_equation_reads_explained_under_an_inconclusive_report():
+    """Free runs that leave the report inconclusive (the adapted model worse than the nominal one on
+    held-out data) leave the explained equation inconclusive too, with the report's reasons; other
+    equations and other reports are left as they are."""
+    gap = lambda target, kind, effect: EquationGap(
+        target=target, significant=effect is not None, verdict_kind=kind, effect=effect, hypothesis="", exponent=None,
+        catalogue_exponent=None, start_equation="", retuned_equation="", adapted_equation="", confidence={},
+        improvement={}, structure_left=0.0, components=[], ranking=[], where={}, estimator={}, checks={"reasons": []})
+    explained, quiet = gap("x_ddot", Verdict.EXPLAINED, "Coulomb friction"), gap("v_dot", Verdict.NO_GAP, None)
+    kind, _, reasons = overall((explained, quiet), True, True, _free_run(0.3, 0.2, 0.5))
+    assert kind is Verdict.INCONCLUSIVE and "worse than the nominal" in reasons[0]
+    first, second = demoted((explained, quiet), kind, reasons)
+    assert first.verdict_kind is Verdict.INCONCLUSIVE and first.verdict == "inconclusive"
+    assert first.checks["reasons"] == reasons and first.effect == "Coulomb friction"
+    assert second == quiet
+    assert demoted((explained, quiet), Verdict.EXPLAINED, []) == (explained, quiet)

@@ -30,7 +30,7 @@ from .multi import in_turn
 from .options import DiagnoseOptions
 from .report import GapReport
 from .simulated import diagnose_simulated
-from .verdict import overall
+from .verdict import demoted, overall
 
 
 def diagnose(config: Config | dict | str | Path, data: DataArgument = None, validation: DataArgument = None,
@@ -82,6 +82,7 @@ def _diagnose_once(config: Config, data: DataArgument, validation: DataArgument,
                            estimation.info["band_edge"])
     kind, verdict, reasons = overall(gaps, any(g.significant for g in gaps), name_targets=len(gaps) > 1,
                                      free_run=gap_measures.get("free_run"))
+    gaps = demoted(gaps, kind, reasons)
     data_info = {"train": dict(train.info),
                  "held_out": dict(held_out.info) if held_out is not None else "alternate time blocks",
                  "nominal_parameters": parameters}

@@ -6,6 +6,7 @@ re-fitted start) does not diverge and is no worse than the nominal model's on he
 otherwise it is inconclusive, with the reasons and what to try."""
 from __future__ import annotations
 
+from dataclasses import replace
 from enum import Enum
 from typing import Sequence
 
@@ -121,3 +122,15 @@ def overall(gaps: Sequence, significant: bool, name_targets: bool,
     if undecided:
         return kind, kind.text(), [f"{g.target}: {r}" for g in undecided for r in g.checks.get("reasons", [])]
     return kind, kind.text(), []
+
+
+def demoted(gaps: Sequence, kind: Verdict, reasons: list[str]) -> tuple:
+    """The equations as the report states them: when the free runs leave the report inconclusive
+    although an equation explained its gap (:func:`overall`), that equation is inconclusive too,
+    with the report's ``reasons`` added to its own, so that no equation reads "explained" under an
+    inconclusive report."""
+    if kind is not Verdict.INCONCLUSIVE:
+        return tuple(gaps)
+    return tuple(replace(g, verdict_kind=Verdict.INCONCLUSIVE,
+                         checks={**g.checks, "reasons": [*g.checks.get("reasons", []), *reasons]})
+                 if g.verdict_kind is Verdict.EXPLAINED else g for g in gaps)
