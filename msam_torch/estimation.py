@@ -26,7 +26,8 @@ from .config import DataConfig
 from .data import Dataset, build_dataset
 from .derivatives import DerivativeEstimator, InBand
 from .errors import DataError, MSAMError
-from .spec import Equation, ModelSpec, derivative_name, split_derivative
+from .simulation import EquationModel
+from .spec import ModelSpec, derivative_name, split_derivative
 from .weak import half_width_for
 
 SAMPLES_PER_PERIOD = 7  # decimation keeps the band edge below 1/7 of the sampling rate
@@ -85,30 +86,27 @@ class Kink:
 
     signal: str
     inputs: tuple[str, ...]  # the inputs the rate reads
-    equation: Equation
-    theta: torch.Tensor  # (Q,) nominal
-
-    def rate(self, values: dict) -> torch.Tensor:
-        return sum(th * c.term(values) for th, c in zip(self.theta, self.equation.components))
+    model: EquationModel  # the starting model of the signal's equation
 
     def at(self, measured: dict, k: np.ndarray, switching: list) -> tuple[np.ndarray, np.ndarray] | None:
         """At the switch samples ``k``: the rate with the inputs of ``switching`` after the switch less
         the rate before, and the rate's slope in the signal (both at the sample's state); None where
         the rate reads a signal the record lacks or cannot be evaluated there."""
-        names = set().union(*(c.term.names for c in self.equation.components))
+        names = self.model.equation.signals - {self.model.equation.target, "t"}
         if not names <= set(measured):
             return None
-        after = {n: torch.as_tensor(measured[n][k], dtype=torch.float64) for n in names}
-        before = {**after, **{u: torch.as_tensor(measured[u][k - 1], dtype=torch.float64) for u in switching}}
+        at = lambda n, i: torch.as_tensor(measured[n][i], dtype=torch.float64).unsqueeze(0)  # (1, K): one model row
+        after = {n: at(n, k) for n in names}
+        before = {**after, **{u: at(u, k - 1) for u in switching}}
         own = after[self.signal].clone().requires_grad_(True) if self.signal in names else None
         try:
-            rate = self.rate({**after, **({} if own is None else {self.signal: own})})
-            jump = rate.detach() - self.rate(before)
+            rate = self.model.rate({**after, **({} if own is None else {self.signal: own})})[0]
+            jump = rate.detach() - self.model.rate(before)[0]
         except MSAMError:
             return None
-        slope = torch.zeros_like(jump) if own is None else torch.autograd.grad(rate.sum(), own, allow_unused=True)[0]
+        slope = None if own is None else torch.autograd.grad(rate.sum(), own, allow_unused=True)[0]
         slope = torch.zeros_like(jump) if slope is None else slope
-        return jump.broadcast_to(k.shape).numpy(), slope.broadcast_to(k.shape).numpy()
+        return jump.broadcast_to(k.shape).numpy(), slope.reshape(-1).broadcast_to(k.shape).numpy()
 
 
 def kinking(spec: ModelSpec) -> dict[str, Kink]:
@@ -120,7 +118,7 @@ def kinking(spec: ModelSpec) -> dict[str, Kink]:
         inputs = tuple(u for u in spec.inputs if u in equation.signals)
         if inputs:
             signal = derivative_name(base, order - 1)
-            out[signal] = Kink(signal, inputs, equation, spec.theta(equation))
+            out[signal] = Kink(signal, inputs, EquationModel.starting(equation, spec.theta(equation)))
     return out
 
 

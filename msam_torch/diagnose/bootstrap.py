@@ -9,7 +9,7 @@ import torch
 
 from ..candidates import EquationData
 from ..step import StepOptions
-from .hypotheses import Fitted, fit, heldout_rmse, sane
+from .hypotheses import Fitted, fit, heldout_errors, heldout_rmse, sane
 from .options import DiagnoseOptions
 from .weak import WeakForm
 
@@ -53,7 +53,7 @@ def bootstrap(weak: WeakForm, choices: torch.Tensor, original: Fitted, rmse: tor
     keep = torch.tensor([0] + effects[:options.bootstrap_hypotheses], device=t.device)
     part = fit(data, choices[keep], original.gamma[:, keep], step_options, options.bootstrap_steps)
     boot_rmse = torch.full((options.bootstrap, choices.shape[0]), torch.inf, dtype=t.dtype, device=t.device)
-    boot_rmse[:, keep] = heldout_rmse(weak.val_data, weak.val_rows, choices[keep], part)
+    boot_rmse[:, keep] = heldout_rmse(heldout_errors(weak.val_data, weak.val_rows, choices[keep], part), part)
     return Bootstrap(data, _scatter(part, keep, choices.shape[0]), boot_rmse)
 
 

@@ -219,9 +219,11 @@ def margin(confidence: dict) -> str:
     if confidence["runner_up"] is None:
         return "no competing hypothesis with another name"
     rival, runner = confidence.get("rival"), confidence["runner_up"]
-    told = "" if rival is None else f"{', it' if rival == runner else f'; {rival}'} as good in " \
-        f"{100 * confidence['apart_p']:.0f} % of held-out resamples"
-    return f"margin {100 * confidence['margin']:.1f} % to {runner}" + told
+    text = f"margin {100 * confidence['margin']:.1f} % to {runner}"
+    if rival is None:
+        return text
+    who = ", it" if rival == runner else f"; {rival}"
+    return f"{text}{who} as good in {100 * confidence['apart_p']:.0f} % of held-out resamples"
 
 
 def _percent(share: float) -> str:

@@ -19,7 +19,7 @@ from .bootstrap import bootstrap
 from .compare import models
 from ..estimation import Estimation
 from .hypotheses import (Fitted, Hypothesis, encode, enumerate_hypotheses, exponent, extended_equation, fit,
-                         fitted_text, heldout_rmse, predict_rows)
+                         fitted_text, heldout_errors, heldout_rmse)
 from .intervals import term_intervals
 from .localise import starting_where
 from .naming import Naming, name_hypotheses
@@ -57,7 +57,8 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     choices, starts = encode(equation, hypotheses, t.device)
     step_options = StepOptions(scaling="gauss_newton", step_size="one", theta="varpro", damping=options.damping)
     original = fit(weak.data, choices, starts, step_options, options.steps)
-    rmse = heldout_rmse(weak.val_data, weak.val_rows, choices, original)[0]  # (C,)
+    errors = heldout_errors(weak.val_data, weak.val_rows, choices, original)  # (1, C, M')
+    rmse, errors = heldout_rmse(errors, original)[0], errors[0]  # (C,), (C, M')
 
     # bootstrap trials: time blocks and measurement noise
     source, order = target_source(extended, weak.signals)
@@ -78,7 +79,6 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     trial_outcomes = []
     if boot is not None:
         trial_outcomes = confidence.outcomes([names] * boot.rmse.shape[0], boot.rmse, is_effect, target_rms, options)
-    errors = predict_rows(weak.val_data, choices, original)[0][:, weak.val_rows] - weak.y_val  # (C, M') held out
     sure = confidence.summary(rmse, names, best, is_significant, outcome, trial_outcomes, is_effect, errors,
                               options.blocks, generator)
 

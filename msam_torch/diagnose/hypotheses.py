@@ -151,10 +151,14 @@ def predict_rows(data: EquationData, choices: torch.Tensor, fitted: Fitted) -> t
     return predict(selection, cols, fitted.theta, fitted.theta_fixed)
 
 
-def heldout_rmse(val_data: EquationData, val_rows: torch.Tensor, choices: torch.Tensor, fitted: Fitted) -> torch.Tensor:
-    """RMSE of every trial and hypothesis on the held-out rows (T, C); invalid fits score inf."""
-    yhat = predict_rows(val_data, choices, fitted)[..., val_rows]
-    rmse = torch.sqrt(((yhat - val_data.y[0][val_rows]) ** 2).mean(-1))
+def heldout_errors(val_data: EquationData, val_rows: torch.Tensor, choices: torch.Tensor, fitted: Fitted) -> torch.Tensor:
+    """Prediction errors of every trial and hypothesis on the held-out rows (T, C, M')."""
+    return predict_rows(val_data, choices, fitted)[..., val_rows] - val_data.y[0][val_rows]
+
+
+def heldout_rmse(errors: torch.Tensor, fitted: Fitted) -> torch.Tensor:
+    """RMSE (T, C) of the held-out ``errors`` (:func:`heldout_errors`); invalid fits score inf."""
+    rmse = torch.sqrt((errors**2).mean(-1))
     return torch.where(fitted.invalid | ~torch.isfinite(rmse), torch.full_like(rmse, torch.inf), rmse)
 
 
