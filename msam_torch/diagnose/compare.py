@@ -51,11 +51,14 @@ def check_solver(method: str) -> None:
 
 
 def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, series: dict, options: DiagnoseOptions,
-            band: float = math.inf) -> dict:
+            band: float = math.inf, starts: dict | None = None) -> dict:
     """One-step and free-run measures of the three models on training and held-out data; the
     arrays the plots draw are added to ``series`` (per target); ``band``: the band edge of the
-    measured states (cycles per time unit), which bounds a fixed solver step. A free run that diverges (not
-    finite, or NRMSE above :data:`DIVERGED`) is listed in ``diverged`` and has no NRMSE.
+    measured states (cycles per time unit), which bounds a fixed solver step. The free runs are
+    scored against the states as recorded (not as the data loader smoothed them) and start from
+    ``starts[label]``'s first samples where given (the diagnosis's own view of each record: its
+    weak-form signals), else from the dataset's. A free run that diverges (not finite, or NRMSE
+    above :data:`DIVERGED`) is listed in ``diverged`` and has no NRMSE.
 
     Held-out data are simulated with every bootstrap trial's models (for the interval of the gap
     closed); training data with the three point models (all, when there are no held-out data)."""
@@ -73,9 +76,9 @@ def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, serie
     if not options.free_run:
         return out
     batches = {label: models if label == list(sets)[-1] else [_first(m, 3) for m in models] for label in sets}
-    trajectories, solvers = _simulate_sets(spec, sets, batches, options, band)
+    trajectories, solvers = _simulate_sets(spec, sets, batches, options, band, starts or {})
     for label, dataset in sets.items():
-        s, trajectory = dataset.signals, trajectories[label]
+        s, trajectory = recorded(dataset), trajectories[label]
         measured = [x for x in spec.states if x in dataset.info.get("measured", spec.states)] or list(spec.states)
         per_state = {x: measures.by_model(measures.error_measures(s[x], trajectory[x][:3])) for x in spec.states}
         nrmse_all = torch.stack([torch.tensor(measures.error_measures(s[x], trajectory[x])["nrmse"])
@@ -96,8 +99,14 @@ def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, serie
     return out
 
 
-def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: DiagnoseOptions, band: float) -> tuple:
-    """Free runs from each set's first (estimated) state under its inputs; sets on the same time
+def recorded(dataset) -> dict:
+    """A dataset's signals with the measured ones as recorded (unsmoothed)."""
+    return {**dataset.signals, **dataset.measured}
+
+
+def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: DiagnoseOptions, band: float,
+                   starts: dict) -> tuple:
+    """Free runs from each set's first state (``starts[label]``, else the set's) under its inputs; sets on the same time
     grid are integrated in one batch. A fixed-step solver without a given step starts at
     :data:`PER_PERIOD` of the band's period (at most 1/:data:`STEPS` of the record) and halves it
     until the three point models' runs at the step and at twice it agree (:func:`converged`) over
@@ -122,8 +131,9 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
         seen = lambda u: anti_aliased(u, float(t[1] - t[0]), 2 * step if auto else step) if fixed else u
         inputs = {u: torch.cat([seen(sets[label].signals[u]).expand(n, -1) for label, n in zip(group, sizes)])
                   for u in spec.inputs}
-        initial = {x: torch.cat([sets[label].signals[x][0].expand(n) for label, n in zip(group, sizes)]) for x in spec.states}
-        scale = {x: max(float(sets[label].signals[x].abs().max()) for label in group) for x in spec.states}
+        first = lambda label, x: (starts.get(label) or sets[label].signals).get(x, sets[label].signals[x])[0]
+        initial = {x: torch.cat([first(label, x).expand(n) for label, n in zip(group, sizes)]) for x in spec.states}
+        scale = {x: max(float(recorded(sets[label])[x].abs().max()) for label in group) for x in spec.states}
         atol = torch.tensor([options.atol * max(scale[x], torch.finfo(t.dtype).tiny) for x in spec.states],
                             dtype=t.dtype, device=t.device)
         run = lambda models, step, n, keep=None: simulate(
@@ -137,9 +147,11 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
             whole = n == t.shape[0]  # the check spans the record: its fine runs are the free runs
             fine = lambda step: run(batch, step, n) if whole else check(step)
             at_points = lambda runs: {x: v[points] for x, v in runs.items()} if whole else runs
+            reference = {x: torch.cat([recorded(sets[label])[x][:n].expand(3, -1) for label in group]) for x in spec.states}
+            spread = {x: torch.cat([recorded(sets[label])[x].std().expand(3, 1) for label in group]) for x in spec.states}
             coarse, runs = check(2 * step), fine(step)
             for halving in range(HALVINGS + 1):
-                agree = converged(coarse, at_points(runs), scale)
+                agree = converged(coarse, at_points(runs), scale, _off(at_points(runs), reference, spread))
                 if agree or halving == HALVINGS:
                     break
                 coarse, step = at_points(runs), step / 2
@@ -167,11 +179,24 @@ def anti_aliased(signal: torch.Tensor, dt: float, step: float) -> torch.Tensor:
     return torch.as_tensor(filtered.copy(), dtype=signal.dtype, device=signal.device)
 
 
-def converged(coarse: dict, fine: dict, scale: dict) -> bool:
+def _off(runs: dict, reference: dict, spread: dict) -> torch.Tensor:
+    """Members (B,) whose run leaves the record by more than :data:`DIVERGED` of a state's
+    standard deviation (RMS over the run), or is not finite: diverged whatever the step."""
+    first = next(iter(runs.values()))
+    off = torch.zeros(first.shape[0], dtype=torch.bool, device=first.device)
+    for x, v in runs.items():
+        deviation = (v - reference[x]).square().mean(-1, keepdim=True).sqrt()
+        off |= ~(deviation <= DIVERGED * spread[x]).squeeze(-1)
+    return off
+
+
+def converged(coarse: dict, fine: dict, scale: dict, off: torch.Tensor | None = None) -> bool:
     """Runs at two steps agree: RMS difference within :data:`AGREEMENT` of each state's
-    measured magnitude for every member, diverged (NaN) in both or in neither."""
+    measured magnitude for every member, diverged (NaN) in both or in neither; members ``off``
+    (B,) the record in the fine run (:func:`_off`) are not checked: they are reported diverged."""
+    keep = slice(None) if off is None else ~off
     for x, a in coarse.items():
-        b = fine[x]
+        a, b = a[keep], fine[x][keep]
         if not torch.equal(torch.isnan(a).all(-1), torch.isnan(b).all(-1)):
             return False
         both = torch.isfinite(a) & torch.isfinite(b)
