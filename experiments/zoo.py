@@ -138,7 +138,8 @@ def table(rows: list[dict], group: str, labels: list) -> str:
     """Our figures, one line per group value."""
     head = ("| " + group + " | cases | top-1 <= 1 % noise | top-1 at 5 % | top-1 all | null: no gap | "
             "null theta within 3 % (<= 1 % noise) | out-of-catalogue: confident wrong name | wrong names (all cases) | "
-            "re-fitted start no worse (held-out free run) | diverged beside a verdict | errors | s per case |")
+            "re-fitted start no worse (held-out free run) | diverged beside a verdict (any model / its own) | errors | "
+            "s per case |")
     lines = [head, "|" + "---|" * 13]
     for label in labels + ["all"]:
         part = [r for r in rows if label == "all" or r[group] == label]
@@ -151,7 +152,8 @@ def table(rows: list[dict], group: str, labels: list) -> str:
             f"{_rate(part, 'ours', 'no_gap', _is('null'))} | {_rate(part, 'ours', 'theta_ok', _low('null'))} | "
             f"{_inverse_rate(part, 'ours', 'confident_wrong')} | {_inverse_rate(part, 'ours', 'wrong_name')} | "
             f"{_rate(part, 'ours', 'retuned_no_worse')} | "
-            f"{_inverse_rate(part, 'ours', 'diverged_beside_verdict')} | "
+            f"{_inverse_rate(part, 'ours', 'diverged_beside_verdict')} / "
+            f"{_inverse_rate(part, 'ours', 'own_run_diverged')} | "
             f"{sum('error' in r['ours'] for r in part)} | "
             f"{(sum(seconds) / len(seconds)) if seconds else math.nan:.2f} |")
     return "\n".join(lines)

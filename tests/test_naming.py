@@ -189,3 +189,43 @@ def test_a_trial_that_never_left_its_warm_start_has_no_exponent_of_its_own():
     assert half_width(boot(counted), 0, 0, 1.0) == pytest.approx(spread) and spread > 0.25
     assert float(1.4826 * 2 * (counted - counted.median()).abs().median()) < 0.8 * spread
     assert half_width(boot(torch.cat([moved[:1], stuck])), 0, 0, 1.0) == 0.2
+
+
+def test_pinned_rivals_are_the_single_valued_entries_a_hypothesis_admits():
+    """A motor's speed equation ``w_dot = kt i - b w`` with ``abs(w)``: the multiplicative and the
+    additive hypothesis on ``b w`` are each pinned at Coulomb friction (total exponent 0: gamma -1)
+    and quadratic drag (2: gamma 1); exponent ranges (power-law damping) are fitted freely, not
+    pinned, and an additive hypothesis tried from three starts is pinned once."""
+    from msam_torch.diagnose.hypotheses import enumerate_hypotheses
+    from msam_torch.diagnose.naming import pinned
+
+    model, frames, declare = drive()
+    config = load_config({"model": {**model, "quantities": declare},
+                          "data": {"time": "t", "columns": {"w": "w", "i": "i"}}})
+    spec = ModelSpec.from_config(config.model)
+    hypotheses = enumerate_hypotheses(spec.equations[0])
+    pins = [(hypotheses[p.hypothesis].kind, p.gamma, p.entry.name) for p in pinned(spec, spec.equations[0], hypotheses)]
+    assert sorted(pins) == [("additive", -1.0, "Coulomb friction"), ("additive", 1.0, "quadratic drag"),
+                            ("multiplicative", -1.0, "Coulomb friction"), ("multiplicative", 1.0, "quadratic drag")]
+    assert sum(h.kind == "additive" for h in hypotheses) == 3
+
+
+def test_a_name_is_told_apart_from_another_entry_at_its_catalogue_exponent():
+    """The free fits hold no rival with another name, but the hypothesis pinned at another entry's
+    exponent predicts the held-out rows as well: that entry is the rival and the p-value is high;
+    a pinned fit of the winner's own entry is no rival, and a far worse one is told apart."""
+    from msam_torch.diagnose.confidence import summary
+
+    generator = torch.Generator().manual_seed(0)
+    base = torch.sin(torch.linspace(0, 20, 400, dtype=torch.float64))
+    errors = torch.stack([3 * base, base, 1.5 * base])  # re-fitted start, the winner, an uncatalogued fit
+    rmse = errors.square().mean(-1).sqrt()
+    names, effect = ["no significant gap", "power-law damping", "power law, no catalogued effect"], torch.tensor([False, True, False])
+    args = (rmse, names, 1, True, "power-law damping", [], effect, errors, 10, generator)
+    alone = summary(*args)
+    assert alone["rival"] is None and alone["apart_p"] == 0.0
+    wobble = 0.05 * torch.cos(torch.linspace(0, 200, 400, dtype=torch.float64))
+    close = summary(*args, (torch.stack([base + wobble, 0.9 * base]), ["quadratic drag", "power-law damping"]))
+    assert close["rival"] == "quadratic drag at its catalogue exponent" and close["apart_p"] > 0.2
+    far = summary(*args, (torch.stack([2 * base]), ["quadratic drag"]))
+    assert far["rival"] == "quadratic drag at its catalogue exponent" and far["apart_p"] == 0.0

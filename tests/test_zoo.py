@@ -146,6 +146,7 @@ def test_diagnosis_on_a_null_and_a_torricelli_case(tmp_path):
     report = run_diagnosis(path, tmp_path / "null" / "train.csv", tmp_path / "null" / "validation.csv")
     figures = score.score(report, null.truth)
     assert report.verdict_kind is Verdict.NO_GAP and figures["no_gap"] and figures["theta_ok"]
+    assert figures["own_run_diverged"] is False and figures["diverged_beside_verdict"] is False
 
     tanks = generate(4)
     assert tanks.truth["name"] == "Torricelli outflow" and tanks.truth["targets"] == ["h2_dot"]
@@ -181,3 +182,24 @@ def test_wrong_names_are_counted_on_every_kind_of_case():
         other = {"kind": kind, "name": None, "theta": {}}
         assert score.score(report(("w_dot", "gap explained by Coulomb friction")), other)["wrong_name"]
         assert not score.score(report(("w_dot", "no significant gap")), other)["wrong_name"]
+
+
+def test_a_diverged_run_is_told_from_a_diverged_run_of_the_model_the_verdict_rests_on():
+    """A named effect rests on the adapted model, "no significant gap" on the re-fitted start: a
+    diverged nominal model beside a named effect is counted beside the verdict, not as its own."""
+    truth = {"kind": "catalogued", "name": "quadratic drag", "targets": ["w_dot"], "component": "w", "function": "w",
+             "exponent": 1.0}
+
+    def figures(kind, verdict, nrmse):
+        report = {"verdict": verdict, "verdict_kind": kind, "measures": {"free_run": {"held_out": {"nrmse": nrmse}}},
+                  "equations": [{"target": "w_dot", "verdict": verdict, "significant": kind != "no_gap",
+                                 "effect": None, "hypothesis": "w + w*abs(w)^gamma", "exponent": 1.0}]}
+        found = score.score(report, truth)
+        return found["diverged_beside_verdict"], found["own_run_diverged"]
+
+    named = "gap explained by quadratic drag"
+    assert figures("explained", named, {"start": None, "retuned": 0.4, "adapted": 0.02}) == (True, False)
+    assert figures("explained", named, {"start": 0.5, "retuned": 0.4, "adapted": 12.0}) == (True, True)
+    assert figures("no_gap", "no significant gap", {"start": 0.5, "retuned": None, "adapted": 0.3}) == (True, True)
+    assert figures("no_gap", "no significant gap", {"start": None, "retuned": 0.3, "adapted": 0.3}) == (True, False)
+    assert figures("inconclusive", "inconclusive", {"start": None, "retuned": None, "adapted": None}) == (False, False)

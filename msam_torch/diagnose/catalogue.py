@@ -130,15 +130,27 @@ def consistent(catalogue: tuple[EffectConfig, ...], reading: Reading, total: flo
     through one signal: ``s`` must be ``M`` (``h1 |h2|^0.5`` is no outflow law of either level).
     A fit whose interval holds ``gamma = 0`` (the component's own law, unchanged) is consistent
     with none."""
-    if reading.power is None or None in (reading.acts_on, reading.term, reading.depends_on):
+    if reading.power is not None and abs(total - reading.power) <= half_width:
         return []
-    if (reading.term == reading.depends_on and reading.power != 1.0) or abs(total - reading.power) <= half_width:
-        return []
-    fits = [e for e in catalogue if reading.acts_on in e.acts_on and reading.term in e.term
-            and reading.depends_on in e.depends_on and e.sign in ("any", "same" if same_sign else "opposite")]
+    fits = [e for e in admitted(catalogue, reading) if signed(e, same_sign)]
     inside = lambda e: (e.exponent[0] <= total <= e.exponent[1] if isinstance(e.exponent, tuple)
                         else abs(e.exponent - total) <= half_width)
     return list({e.name: e for e in fits if inside(e)}.values())
+
+
+def admitted(catalogue: tuple[EffectConfig, ...], reading: Reading) -> list[EffectConfig]:
+    """The entries whose quantities fit ``reading``, at any exponent and sign (see :func:`consistent`)."""
+    if reading.power is None or None in (reading.acts_on, reading.term, reading.depends_on):
+        return []
+    if reading.term == reading.depends_on and reading.power != 1.0:
+        return []
+    return [e for e in catalogue if reading.acts_on in e.acts_on and reading.term in e.term
+            and reading.depends_on in e.depends_on]
+
+
+def signed(entry: EffectConfig, same_sign: bool) -> bool:
+    """Whether an effect of the starting component's sign (``same_sign``) or the opposite fits ``entry``."""
+    return entry.sign in ("any", "same" if same_sign else "opposite")
 
 
 def match(catalogue: tuple[EffectConfig, ...], reading: Reading, total: float, half_width: float,

@@ -54,12 +54,14 @@ def told_apart(errors: torch.Tensor, best: int, rival: int, blocks: int, generat
 
 def summary(rmse: torch.Tensor, names: list[str], best: int, is_significant: bool, outcome: str,
             trial_outcomes: list[str], is_effect: torch.Tensor, errors: torch.Tensor, blocks: int,
-            generator: torch.Generator) -> dict:
+            generator: torch.Generator, pinned: tuple[torch.Tensor, list[str]] | None = None) -> dict:
     """The report's ``confidence``: ``margin`` (held-out RMSE of the best hypothesis with another
     name, relative to the chosen one's), ``runner_up``; ``rival``, the best effect hypothesis
-    (``is_effect``) with another name (an uncatalogued power law too), and ``apart_p``
-    (:func:`told_apart` on the held-out ``errors`` (C, M); 0 without a rival); ``win_frequency`` of
-    ``outcome`` over the bootstrap trials (NaN without trials) and the ``outcomes`` counted."""
+    (``is_effect``) with another name (an uncatalogued power law too) or, better still on the
+    held-out rows, a hypothesis ``pinned`` at another entry's catalogue exponent (its errors
+    (P, M) and names), and ``apart_p`` (:func:`told_apart` on the held-out ``errors`` (C, M); 0
+    without a rival); ``win_frequency`` of ``outcome`` over the bootstrap trials (NaN without
+    trials) and the ``outcomes`` counted."""
     frequency = win_frequency(trial_outcomes, outcome) if trial_outcomes else float("nan")
     ranked = [int(c) for c in torch.argsort(rmse) if torch.isfinite(rmse[c])]
     runner = next((c for c in ranked if names[c] != names[best] and c != 0), None) if is_significant else best
@@ -67,6 +69,12 @@ def summary(rmse: torch.Tensor, names: list[str], best: int, is_significant: boo
     margin = float((rmse[runner] - reference) / reference) if runner is not None and reference > 0 else float("inf")
     rival = next((c for c in ranked if names[c] != names[best] and c != 0 and bool(is_effect[c])), None) \
         if is_significant else None
+    if is_significant and pinned is not None:
+        errors = torch.cat([errors, pinned[0]])
+        names = names + [f"{name} at its catalogue exponent" for name in pinned[1]]
+        others = [rmse.shape[0] + k for k, name in enumerate(pinned[1]) if name != names[best]]
+        rival = min(([] if rival is None else [rival]) + others, key=lambda c: float(errors[c].square().mean()),
+                    default=None)
     return {"margin": margin, "runner_up": names[runner] if runner is not None and is_significant else None,
             "rival": None if rival is None else names[rival],
             "apart_p": 0.0 if rival is None else told_apart(errors, best, rival, blocks, generator),

@@ -19,10 +19,10 @@ from .bootstrap import bootstrap
 from .compare import models
 from ..estimation import Estimation
 from .hypotheses import (Fitted, Hypothesis, encode, enumerate_hypotheses, exponent, extended_equation, fit,
-                         fitted_text, heldout_errors, heldout_rmse)
+                         fitted_text, heldout_errors, heldout_rmse, slot)
 from .intervals import term_intervals
 from .localise import starting_where
-from .naming import Naming, name_hypotheses
+from .naming import Naming, name_hypotheses, pinned, pinned_signs
 from .options import DiagnoseOptions
 from .report import EquationGap
 from .structure import residual_checks, structure_left
@@ -79,8 +79,10 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     trial_outcomes = []
     if boot is not None:
         trial_outcomes = confidence.outcomes([names] * boot.rmse.shape[0], boot.rmse, is_effect, target_rms, options)
+    rivals = _pinned_rivals(spec, equation, hypotheses, weak, choices, starts, step_options, nominal) \
+        if is_significant else None
     sure = confidence.summary(rmse, names, best, is_significant, outcome, trial_outcomes, is_effect, errors,
-                              options.blocks, generator)
+                              options.blocks, generator, rivals)
 
     # verdict (with the residual structure the effect leaves), and where the starting model fails
     structure = structure_left(equation, weak, choices, original, best)
@@ -114,6 +116,25 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     )
     model = models(extended, equation, nominal, choices, original, boot, winner, is_effect, weak.scale)
     return EquationDiagnosis(gap, model, {"where": where["series"]})
+
+
+def _pinned_rivals(spec: ModelSpec, equation: Equation, hypotheses: list[Hypothesis], weak: WeakForm,
+                   choices: torch.Tensor, starts: torch.Tensor, step_options: StepOptions,
+                   nominal: torch.Tensor) -> tuple[torch.Tensor, list[str]] | None:
+    """Held-out errors (P, M') and entry names of the effect hypotheses pinned at catalogue exponents
+    (:func:`.naming.pinned`) whose fitted theta has the sign their entry asks; None without any."""
+    pins = pinned(spec, equation, hypotheses)
+    if not pins:
+        return None
+    rows = torch.tensor([p.hypothesis for p in pins], device=choices.device)
+    start = starts[rows].clone()
+    for k, p in enumerate(pins):
+        start[k, slot(equation, hypotheses[p.hypothesis])] = p.gamma
+    fitted = fit(weak.data, choices[rows], start, step_options, 0)  # theta solved at the pinned exponents
+    errors = heldout_errors(weak.val_data, weak.val_rows, choices[rows], fitted)[0]
+    keep = [k for k, ok in enumerate(pinned_signs(pins, hypotheses, equation, fitted.theta[0], nominal))
+            if ok and bool(torch.isfinite(errors[k]).all())]
+    return (errors[keep], [pins[k].entry.name for k in keep]) if keep else None
 
 
 def _components(equation: Equation, hypotheses: list[Hypothesis], rmse: torch.Tensor) -> list[dict]:

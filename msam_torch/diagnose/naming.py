@@ -81,7 +81,7 @@ def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypoth
         half = half_width(boot, c, s, gamma)
         moved = gamma != h.start
         ok = bool(is_sane[c]) and moved and half <= STABLE_HALF_WIDTH
-        same_sign = h.kind == "multiplicative" or float(original.theta[0, c, s]) * float(nominal[h.component]) > 0
+        same_sign = _same_sign(h, equation, original.theta[0, c], nominal)
         found = catalogue.consistent(entries, reading, total, half, same_sign) if ok else []
         entry = catalogue.sole(found)
         names.append(catalogue.NOT_CATALOGUED if entry is None else entry.name)
@@ -115,3 +115,40 @@ def _details(entry, reading: catalogue.Reading, roles: catalogue.Roles, total: f
             "reference": None if entry is None else entry.reference,
             "quantities": {"acts_on": reading.acts_on, "term": reading.term, "depends_on": reading.depends_on},
             "assumed_quantities": dict(roles.assumed)}
+
+
+@dataclass(frozen=True)
+class Pinned:
+    """An effect hypothesis held at a catalogue entry's exponent (theta re-fitted): a rival the
+    name of another entry must be told apart from (:func:`.confidence.summary`) even where the
+    free fit of that hypothesis fell into another optimum."""
+
+    hypothesis: int  # index into the hypotheses
+    gamma: float  # the exponent in the hypothesis's slot: the entry's total exponent less the power of s in M
+    entry: object  # the catalogue entry (EffectConfig)
+
+
+def pinned(spec: ModelSpec, equation: Equation, hypotheses: list[Hypothesis]) -> list[Pinned]:
+    """Every effect hypothesis (one per kind, component and function) at the exponent of each
+    single-valued catalogue entry its quantities admit, other than the component's own law."""
+    roles, entries, seen, out = catalogue.Roles.of_equation(spec, equation), catalogue.entries(spec), set(), []
+    for c, h in enumerate(hypotheses):
+        if h.kind == "retuned" or (h.kind, h.component, h.function) in seen:
+            continue
+        seen.add((h.kind, h.component, h.function))
+        reading = catalogue.read(roles, equation, h.component, h.function)
+        out += [Pinned(c, float(e.exponent) - reading.power, e) for e in catalogue.admitted(entries, reading)
+                if not isinstance(e.exponent, tuple) and float(e.exponent) != reading.power]
+    return out
+
+
+def pinned_signs(pins: list[Pinned], hypotheses: list[Hypothesis], equation: Equation, theta: torch.Tensor,
+                 nominal: torch.Tensor) -> list[bool]:
+    """Whether each pinned fit (theta (P, 2Q)) has the sign its entry asks of the component."""
+    return [catalogue.signed(p.entry, _same_sign(hypotheses[p.hypothesis], equation, theta[k], nominal))
+            for k, p in enumerate(pins)]
+
+
+def _same_sign(h: Hypothesis, equation: Equation, theta: torch.Tensor, nominal: torch.Tensor) -> bool:
+    """An effect of the starting component's sign (always, for a multiplicative one); ``theta`` (2Q,)."""
+    return h.kind == "multiplicative" or float(theta[slot(equation, h)]) * float(nominal[h.component]) > 0
