@@ -133,7 +133,8 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
                   for u in spec.inputs}
         first = lambda label, x: (starts.get(label) or sets[label].signals).get(x, sets[label].signals[x])[0]
         initial = {x: torch.cat([first(label, x).expand(n) for label, n in zip(group, sizes)]) for x in spec.states}
-        scale = {x: max(float(recorded(sets[label])[x].abs().max()) for label in group) for x in spec.states}
+        views = {label: recorded(sets[label]) for label in group}
+        scale = {x: max(float(views[label][x].abs().max()) for label in group) for x in spec.states}
         atol = torch.tensor([options.atol * max(scale[x], torch.finfo(t.dtype).tiny) for x in spec.states],
                             dtype=t.dtype, device=t.device)
         run = lambda models, step, n, keep=None: simulate(
@@ -147,8 +148,8 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
             whole = n == t.shape[0]  # the check spans the record: its fine runs are the free runs
             fine = lambda step: run(batch, step, n) if whole else check(step)
             at_points = lambda runs: {x: v[points] for x, v in runs.items()} if whole else runs
-            reference = {x: torch.cat([recorded(sets[label])[x][:n].expand(3, -1) for label in group]) for x in spec.states}
-            spread = {x: torch.cat([recorded(sets[label])[x].std().expand(3, 1) for label in group]) for x in spec.states}
+            reference = {x: torch.cat([views[label][x][:n].expand(3, -1) for label in group]) for x in spec.states}
+            spread = {x: torch.cat([views[label][x].std().expand(3, 1) for label in group]) for x in spec.states}
             coarse, runs = check(2 * step), fine(step)
             for halving in range(HALVINGS + 1):
                 agree = converged(coarse, at_points(runs), scale, _off(at_points(runs), reference, spread))
@@ -181,7 +182,9 @@ def anti_aliased(signal: torch.Tensor, dt: float, step: float) -> torch.Tensor:
 
 def _off(runs: dict, reference: dict, spread: dict) -> torch.Tensor:
     """Members (B,) whose run leaves the record by more than :data:`DIVERGED` of a state's
-    standard deviation (RMS over the run), or is not finite: diverged whatever the step."""
+    standard deviation (RMS over the run), or is not finite. Like a run that is NaN at both steps
+    they are reported diverged and not halved for, even where only the step is too long for them
+    (a stiff model under a fixed step)."""
     first = next(iter(runs.values()))
     off = torch.zeros(first.shape[0], dtype=torch.bool, device=first.device)
     for x, v in runs.items():
@@ -193,7 +196,7 @@ def _off(runs: dict, reference: dict, spread: dict) -> torch.Tensor:
 def converged(coarse: dict, fine: dict, scale: dict, off: torch.Tensor | None = None) -> bool:
     """Runs at two steps agree: RMS difference within :data:`AGREEMENT` of each state's
     measured magnitude for every member, diverged (NaN) in both or in neither; members ``off``
-    (B,) the record in the fine run (:func:`_off`) are not checked: they are reported diverged."""
+    (B,) the record in the fine run (:func:`_off`) are not checked."""
     keep = slice(None) if off is None else ~off
     for x, a in coarse.items():
         a, b = a[keep], fine[x][keep]
