@@ -206,10 +206,21 @@ def _positive(kind):
     return parse
 
 
+def _count(text: str) -> int:
+    """An argparse type: a whole number of at least 0, else a one-line usage error."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of at least 0")
+    return value
+
+
 DIAGNOSE_OPTIONS = (  # (flag, DiagnoseOptions field, argparse keywords); defaults are DiagnoseOptions'
     ("--half-width", "half_width", {"type": _positive(float), "help": "test-function half-width in the data's time "
                                     "units (default: chosen from the band of the measured states)"}),
-    ("--bootstrap", "bootstrap", {"type": int, "help": "bootstrap trials (0: none; default 16)"}),
+    ("--bootstrap", "bootstrap", {"type": _count, "help": "bootstrap trials (0: none; default 16)"}),
     ("--seed", "seed", {"type": int, "help": "seed of the bootstrap trials (default 0)"}),
     ("--solver", "solver", {"help": "torchdiffeq method of the free runs: rk4, midpoint, euler (fixed step) or "
                             "dopri5, bosh3, ... (adaptive); default rk4"}),

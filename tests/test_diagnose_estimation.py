@@ -239,3 +239,19 @@ def test_a_free_run_that_leaves_the_record_does_not_hold_back_the_step():
     assert converged(coarse, fine, {"x": 1.0}, off) and not converged(coarse, fine, {"x": 1.0})
     coarse["x"][2] = record * 1.1  # a member on the record that disagrees still holds it back
     assert not converged(coarse, fine, {"x": 1.0}, off)
+
+
+@pytest.mark.parametrize("option, value, message", [
+    ("apart_level", 1.5, "a number in [0, 1]"), ("relative", -0.1, "a number in [0, 1]"),
+    ("check_level", float("nan"), "a number in [0, 1]"), ("rtol", 0.0, "a positive number"),
+    ("half_width", -1.0, "a positive number or None"), ("damping", -1e-3, "a number of at least 0"),
+    ("absolute", True, "a number of at least 0"), ("blocks", 1, "a whole number of at least 2"),
+    ("bootstrap", -3, "a whole number of at least 0"), ("steps", 2.5, "a whole number of at least 1")])
+def test_diagnose_options_out_of_range_name_the_option(option, value, message):
+    """Every option is checked when the options are made: the error names the option and its range."""
+    from msam_torch.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=option) as raised:
+        DiagnoseOptions(**{option: value})
+    assert message in str(raised.value)
+    DiagnoseOptions(relative=1.0, damping=0.0, absolute=0, bootstrap=0, half_width=None, solver_step=None)

@@ -116,7 +116,7 @@ def test_no_gap_by_simulation_needs_a_residual_that_looks_like_noise(tmp_path, p
     frame["y"] += 0.01 * frame["y"].std() * np.random.default_rng(1).standard_normal(len(frame))
     train, held = frame[:100], frame[100:].assign(t=lambda f: f["t"] - f["t"].iloc[0])
     report = diagnose(load_config(TANKS, SHORT), data=train, validation=held, base_dir=tmp_path,
-                      options=DiagnoseOptions(relative=10.0))
+                      options=DiagnoseOptions(relative=1.0))
     checks = report.equations[1].checks
     assert report.verdict.split(";")[0] == verdict, report.reasons
     if power == 0.5:

@@ -297,6 +297,7 @@ CORPUS: dict[str, dict[str, tuple]] = {
         "threads -1": (bundled, ["--threads", "-1"], 2, ["--threads", "'-1'"], "diagnose"),
         "threads 0": (bundled, ["--threads", "0"], 2, ["--threads"], "diagnose"),
         "threads text": (bundled, ["--threads", "many"], 2, ["--threads", "'many'"], "diagnose"),
+        "bootstrap -3": (bundled, ["--bootstrap", "-3"], 2, ["--bootstrap", "'-3'"], "diagnose"),
         "unknown option": (bundled, ["--fast"], 2, ["unrecognized arguments: --fast"]),
         "out is a file (run)": (bundled, ["--out", "{tmp}/config.yaml"], 2, ["--out", "existing file"]),
         "out is a file (diagnose)": (bundled, ["--out", "{tmp}/config.yaml"], 2, ["--out", "existing file"], "diagnose"),

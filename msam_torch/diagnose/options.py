@@ -1,6 +1,7 @@
 """Options of :func:`msam_torch.diagnose.diagnose` (the defaults are the documented method)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from ..errors import ConfigError
@@ -38,5 +39,28 @@ class DiagnoseOptions:
     max_effects: int = 1  # effects added in turn, at most (.multi; 1: the first effect only, no loop)
 
     def __post_init__(self):
-        if isinstance(self.max_effects, bool) or not isinstance(self.max_effects, int) or self.max_effects < 1:
-            raise ConfigError("max_effects", f"expected a whole number of at least 1, got {self.max_effects!r}")
+        """Every option in its range, else a :class:`~msam_torch.errors.ConfigError` naming it."""
+        for name, least in WHOLE.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < least:
+                raise ConfigError(name, f"expected a whole number of at least {least}, got {value!r}")
+        for name, (low, high, above, none) in BOUNDED.items():
+            value = getattr(self, name)
+            if value is None and none:
+                continue
+            number = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+            if not number or value < low or (above and value == low) or (high is not None and value > high):
+                wanted = ("a positive number" if above else f"a number of at least {low:g}") if high is None \
+                    else f"a number in [{low:g}, {high:g}]"
+                raise ConfigError(name, f"expected {wanted}{' or None' if none else ''}, got {value!r}")
+
+
+WHOLE = {"steps": 1, "bootstrap": 0, "bootstrap_steps": 1, "bootstrap_hypotheses": 1, "quadrature_samples": 1,
+         "blocks": 2, "max_effects": 1}  # whole-number options and their least values
+# option: (least value, greatest or None, above the least only, None allowed); shares lie in [0, 1]
+BOUNDED = {"half_width": (0.0, None, True, True), "solver_step": (0.0, None, True, True),
+           "rtol": (0.0, None, True, False), "atol": (0.0, None, True, False),
+           "damping": (0.0, None, False, False), "absolute": (0.0, None, False, False),
+           **{share: (0.0, 1.0, False, False) for share in ("relative", "min_win_frequency", "apart_level",
+                                                            "max_structure_left", "check_level",
+                                                            "max_residual_structure")}}
