@@ -193,34 +193,27 @@ def _diagnose(args) -> int:
     return 0
 
 
-def _positive(kind):
-    """An argparse type: a finite positive ``kind`` (int or float), else a one-line usage error."""
+def _positive(kind, zero: bool = False):
+    """An argparse type: a finite positive ``kind`` (int or float; with ``zero``, 0 too), else a
+    one-line usage error."""
+    number = ("whole " if kind is int else "") + "number"
+    wanted = f"a {number} of at least 0" if zero else f"a positive {number}"
+
     def parse(text: str):
         try:
             value = kind(text)
         except ValueError:
-            value = 0
-        if not 0 < value < float("inf"):
-            raise argparse.ArgumentTypeError(f"{text!r} is not a positive {'whole ' if kind is int else ''}number")
+            value = -1
+        if not (0 <= value if zero else 0 < value) or not value < float("inf"):
+            raise argparse.ArgumentTypeError(f"{text!r} is not {wanted}")
         return value
     return parse
-
-
-def _count(text: str) -> int:
-    """An argparse type: a whole number of at least 0, else a one-line usage error."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of at least 0")
-    return value
 
 
 DIAGNOSE_OPTIONS = (  # (flag, DiagnoseOptions field, argparse keywords); defaults are DiagnoseOptions'
     ("--half-width", "half_width", {"type": _positive(float), "help": "test-function half-width in the data's time "
                                     "units (default: chosen from the band of the measured states)"}),
-    ("--bootstrap", "bootstrap", {"type": _count, "help": "bootstrap trials (0: none; default 16)"}),
+    ("--bootstrap", "bootstrap", {"type": _positive(int, zero=True), "help": "bootstrap trials (0: none; default 16)"}),
     ("--seed", "seed", {"type": int, "help": "seed of the bootstrap trials (default 0)"}),
     ("--solver", "solver", {"help": "torchdiffeq method of the free runs: rk4, midpoint, euler (fixed step) or "
                             "dopri5, bosh3, ... (adaptive); default rk4"}),

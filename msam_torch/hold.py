@@ -82,14 +82,14 @@ def represent(measured: dict, inputs, rule: str, kinks: dict | None = None) -> t
     behaviour = {u: ("zoh" if rule == "zoh" or (rule == "auto" and is_held(measured[u])) else "linear")
                  for u in inputs if u in measured}
     out = {k: quadrature_values(v) if behaviour.get(k) == "zoh" else v for k, v in measured.items()}
-    held = [u for u, b in behaviour.items() if b == "zoh"]
+    switches = {u: np.diff(measured[u], prepend=measured[u][:1]) != 0 for u, b in behaviour.items() if b == "zoh"}
     dt = float(np.median(np.diff(measured["t"]))) if kinks else 0.0
     corrected = []
     for x, kink in (kinks or {}).items():
-        switching = [u for u in kink.inputs if u in held]
+        switching = [u for u in kink.inputs if u in switches]
         if x not in measured or not switching:
             continue
-        k = np.flatnonzero(np.any([np.diff(measured[u], prepend=measured[u][:1]) != 0 for u in switching], axis=0))
+        k = np.flatnonzero(np.any([switches[u] for u in switching], axis=0))
         k = k[(k > 0) & (k < measured[x].size - 1)]
         found = kink.at(measured, k, switching) if k.size else None
         fixed = None if found is None else kink_corrected(measured[x], k, *found, dt)
