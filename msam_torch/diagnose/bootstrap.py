@@ -34,9 +34,11 @@ def block_weights(fit_rows: torch.Tensor, trials: int, blocks: int, generator: t
     return counts[:, block_of].to(fit_rows.device) * fit_rows.to(torch.float64)
 
 
-def bootstrap(weak: WeakForm, choices: torch.Tensor, original: Fitted, rmse: torch.Tensor, noise: float, order: int,
-              options: DiagnoseOptions, step_options: StepOptions, generator: torch.Generator) -> Bootstrap | None:
-    """``options.bootstrap`` trials (None for none): row weights from :func:`block_weights`, target
+def bootstrap(weak: WeakForm, choices: torch.Tensor, q: int, original: Fitted, rmse: torch.Tensor, noise: float,
+              order: int, options: DiagnoseOptions, step_options: StepOptions,
+              generator: torch.Generator) -> Bootstrap | None:
+    """``options.bootstrap`` trials (None for none) of the hypotheses' ``choices`` (``q`` adjustable
+    components, :func:`~.hypotheses.fit`): row weights from :func:`block_weights`, target
     noise of the measured signal's level ``noise`` integrated against the order-``order`` test
     function; the re-fitted start and the ``options.bootstrap_hypotheses`` best valid effect
     hypotheses (by held-out ``rmse``, (C,)) whose exponents are sane (the ones that can be named)
@@ -51,7 +53,7 @@ def bootstrap(weak: WeakForm, choices: torch.Tensor, original: Fitted, rmse: tor
     is_sane = sane(original)[0]
     effects = [int(c) for c in torch.argsort(rmse) if c != 0 and torch.isfinite(rmse[c]) and is_sane[c]]
     keep = torch.tensor([0] + effects[:options.bootstrap_hypotheses], device=t.device)
-    part = fit(data, choices[keep], original.gamma[:, keep], step_options, options.bootstrap_steps)
+    part = fit(data, choices[keep], original.gamma[:, keep], step_options, options.bootstrap_steps, q)
     boot_rmse = torch.full((options.bootstrap, choices.shape[0]), torch.inf, dtype=t.dtype, device=t.device)
     boot_rmse[:, keep] = heldout_rmse(heldout_errors(weak.val_data, weak.val_rows, choices[keep], part), part)
     return Bootstrap(data, _scatter(part, keep, choices.shape[0]), boot_rmse)

@@ -62,17 +62,19 @@ class Roles:
     def of(self, signal: str) -> str | None:
         return self.quantities.get(signal)
 
-    def exchanging(self, equation: Equation, nominal) -> tuple[int, ...]:
+    def exchanging(self, equation: Equation, nominal) -> dict[int, tuple[str, ...]]:
         """Adjustable components that are a signal exchanging with another signal of the same
         declared quantity in the same equation, their starting thetas of opposite signs (the
-        ``T`` of ``-h (T - Ta)``); ``nominal``: the starting thetas. None in an equation that holds
-        a constant component: it carries the exchange's constant already."""
+        ``T`` of ``-h (T - Ta)``), each with the signals it exchanges with (its references);
+        ``nominal``: the starting thetas. None in an equation that holds a constant component:
+        it carries the exchange's constant already."""
         if any(not c.term.names for c in equation.components):
-            return ()
+            return {}
         plain = {i: c.term.text for i, c in enumerate(equation.components) if c.term.text in self.quantities}
-        return tuple(i for i in equation.adjustable if i in plain and any(
-            j != i and self.of(s) == self.of(plain[i]) and float(nominal[i]) * float(nominal[j]) < 0
-            for j, s in plain.items()))
+        partners = {i: tuple(s for j, s in plain.items() if j != i and self.of(s) == self.of(plain[i])
+                             and float(nominal[i]) * float(nominal[j]) < 0)
+                    for i in equation.adjustable if i in plain}
+        return {i: references for i, references in partners.items() if references}
 
     @classmethod
     def of_equation(cls, spec: ModelSpec | None, equation: Equation) -> "Roles":

@@ -111,8 +111,8 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
     :data:`PER_PERIOD` of the band's period (at most 1/:data:`STEPS` of the record) and halves it
     until the three point models' runs at the step and at twice it agree (:func:`converged`) over
     the first :data:`CHECK_STEPS` steps, at most :data:`HALVINGS` times (each set's ``solver``
-    entry says whether they agreed): the step follows the dynamics, not the record's length or
-    sampling, so the cost grows linearly with the record. An adaptive solver keeps its
+    entry says whether they agreed, and ``unconverged`` which did not): the step follows the
+    dynamics, not the record's length or sampling, so the cost grows linearly with the record. An adaptive solver keeps its
     tolerances, ``atol`` relative to each state's measured magnitude."""
     grids = {label: d.signals["t"] for label, d in sets.items()}
     same = len(sets) == 2 and grids["train"].shape == grids["held_out"].shape and torch.allclose(
@@ -124,7 +124,7 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
         t = grids[group[0]]
         sizes = [batches[label][0].choice.shape[0] for label in group]
         batch = [_concat([batches[label][e] for label in group]) for e in range(len(batches[group[0]]))]
-        step, agree, trajectory = options.solver_step, True, None
+        step, agree, trajectory = options.solver_step, torch.ones(3 * len(group), dtype=torch.bool), None
         auto = fixed and step is None
         if auto:
             step = min(float(t[-1] - t[0]) / STEPS, PER_PERIOD / band)
@@ -153,15 +153,17 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
             coarse, runs = check(2 * step), fine(step)
             for halving in range(HALVINGS + 1):
                 agree = converged(coarse, at_points(runs), scale, _off(at_points(runs), reference, spread))
-                if agree or halving == HALVINGS:
+                if bool(agree.all()) or halving == HALVINGS:
                     break
                 coarse, step = at_points(runs), step / 2
                 runs = fine(step)
             trajectory = runs if whole else None
         if trajectory is None:
             trajectory = run(batch, step, t.shape[0])
-        for label in group:
-            steps[label] = {"method": options.solver, "step": step, "converged": agree,
+        for k, label in enumerate(group):
+            settled = agree[3 * k:3 * k + 3].tolist()
+            steps[label] = {"method": options.solver, "step": step, "converged": all(settled),
+                            "unconverged": [m for m, ok in zip(measures.MODELS, settled) if not ok],
                             **({} if fixed else {"rtol": options.rtol, "atol": options.atol})}
         offsets = [0] + torch.tensor(sizes).cumsum(0).tolist()
         for k, label in enumerate(group):
@@ -193,20 +195,19 @@ def _off(runs: dict, reference: dict, spread: dict) -> torch.Tensor:
     return off
 
 
-def converged(coarse: dict, fine: dict, scale: dict, off: torch.Tensor | None = None) -> bool:
-    """Runs at two steps agree: RMS difference within :data:`AGREEMENT` of each state's
-    measured magnitude for every member, diverged (NaN) in both or in neither; members ``off``
-    (B,) the record in the fine run (:func:`_off`) are not checked."""
-    keep = slice(None) if off is None else ~off
+def converged(coarse: dict, fine: dict, scale: dict, off: torch.Tensor | None = None) -> torch.Tensor:
+    """Members (B,) whose runs at two steps agree: RMS difference within :data:`AGREEMENT` of each
+    state's measured magnitude, diverged (NaN) in both or in neither; members ``off`` (B,) the
+    record in the fine run (:func:`_off`) are not checked (they agree)."""
+    agree = None
     for x, a in coarse.items():
-        a, b = a[keep], fine[x][keep]
-        if not torch.equal(torch.isnan(a).all(-1), torch.isnan(b).all(-1)):
-            return False
+        b = fine[x]
         both = torch.isfinite(a) & torch.isfinite(b)
         difference = torch.where(both, a - b, torch.zeros_like(a)).square().mean(-1).sqrt()
-        if bool((difference > AGREEMENT * max(scale[x], torch.finfo(a.dtype).tiny)).any()):
-            return False
-    return True
+        ok = (torch.isnan(a).all(-1) == torch.isnan(b).all(-1)) & \
+            (difference <= AGREEMENT * max(scale[x], torch.finfo(a.dtype).tiny))
+        agree = ok if agree is None else agree & ok
+    return agree if off is None else agree | off
 
 
 def _pick(model: EquationModel, rows: torch.Tensor) -> EquationModel:

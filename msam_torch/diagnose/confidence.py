@@ -45,11 +45,14 @@ def outcomes(names: list[list[str]], rmse: torch.Tensor, is_effect: torch.Tensor
 def told_apart(errors: torch.Tensor, best: int, rival: int, blocks: int, generator: torch.Generator) -> float:
     """The share of block-bootstrap resamples of the held-out rows on which hypothesis ``rival``
     predicts at least as well as ``best`` (sum of squared ``errors`` (C, M)): a one-sided p-value
-    that ``best`` is no better. :data:`RESAMPLES` draws of ``blocks`` contiguous blocks of rows
-    (rows within a test function's reach share their errors), each drawn with replacement."""
+    that ``best`` is no better. :data:`RESAMPLES` draws of ``blocks`` contiguous blocks of rows,
+    each drawn with replacement; ``blocks`` is the number of independent held-out rows (rows within
+    a test function's reach share their errors, :meth:`.weak.WeakForm.independent_rows`), and the
+    p-value is at least 2^-blocks, the chance that ``best`` wins every block when neither is better."""
     square = lambda c: torch.stack([part.square().sum() for part in torch.tensor_split(errors[c], blocks)])
     draws = torch.randint(0, blocks, (RESAMPLES, blocks), generator=generator).to(errors.device)
-    return float((square(rival)[draws].sum(-1) <= square(best)[draws].sum(-1)).double().mean())
+    share = float((square(rival)[draws].sum(-1) <= square(best)[draws].sum(-1)).double().mean())
+    return max(share, 0.5**blocks)
 
 
 def summary(rmse: torch.Tensor, names: list[str], best: int, is_significant: bool, outcome: str,

@@ -19,7 +19,7 @@ from .bootstrap import bootstrap
 from .compare import models
 from ..estimation import Estimation
 from .hypotheses import (Fitted, Hypothesis, encode, enumerate_hypotheses, exponent, extended_equation, fit,
-                         fitted_text, heldout_errors, heldout_rmse, slot)
+                         fitted_text, heldout_errors, heldout_rmse, references, slot)
 from .intervals import term_intervals
 from .localise import starting_where
 from .naming import Naming, name_hypotheses, pinned, pinned_signs
@@ -49,14 +49,14 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     nominal = spec.theta(equation, parameters)
     hypotheses = enumerate_hypotheses(equation, catalogue.Roles.of_equation(spec, equation).exchanging(equation, nominal))
     # weak-form rows of the equation extended by a copy of every adjustable component
-    extended = extended_equation(equation, exchange=any(h.kind == "exchange" for h in hypotheses))
+    extended = extended_equation(equation, references(hypotheses))
     weak = WeakForm.build(extended, estimation.train, estimation.held_out, estimation.half_width, options.blocks)
     t = weak.signals["t"]
     nominal = nominal.to(t)
     # every hypothesis fitted at once, scored on the held-out rows
     choices, starts = encode(equation, hypotheses, t.device)
     step_options = StepOptions(scaling="gauss_newton", step_size="one", theta="varpro", damping=options.damping)
-    original = fit(weak.data, choices, starts, step_options, options.steps)
+    original = fit(weak.data, choices, starts, step_options, options.steps, len(equation.adjustable))
     errors = heldout_errors(weak.val_data, weak.val_rows, choices, original)  # (1, C, M')
     rmse, errors = heldout_rmse(errors, original)[0], errors[0]  # (C,), (C, M')
 
@@ -64,7 +64,8 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     source, order = target_source(extended, weak.signals)
     # white noise keeps about 1 / decimation of its power through the anti-alias filter
     noise = float(train.info.get("noise_level", {}).get(source, 0.0) or 0.0) / estimation.decimation**0.5
-    boot = bootstrap(weak, choices, original, rmse, noise, order, options, step_options, generator)
+    boot = bootstrap(weak, choices, len(equation.adjustable), original, rmse, noise, order, options, step_options,
+                     generator)
 
     # catalogue names within each hypothesis's bootstrap interval of its total exponent
     named = name_hypotheses(spec, equation, hypotheses, original, boot, nominal)
@@ -82,7 +83,7 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     rivals = _pinned_rivals(spec, equation, hypotheses, weak, choices, starts, step_options, nominal) \
         if is_significant else None
     sure = confidence.summary(rmse, names, best, is_significant, outcome, trial_outcomes, is_effect, errors,
-                              options.blocks, generator, rivals)
+                              weak.independent_rows(estimation.reach), generator, rivals)
 
     # verdict (with the residual structure the effect leaves), and where the starting model fails
     structure = structure_left(equation, weak, choices, original, best)
@@ -130,7 +131,7 @@ def _pinned_rivals(spec: ModelSpec, equation: Equation, hypotheses: list[Hypothe
     start = starts[rows].clone()
     for k, p in enumerate(pins):
         start[k, slot(equation, hypotheses[p.hypothesis])] = p.gamma
-    fitted = fit(weak.data, choices[rows], start, step_options, 0)  # theta solved at the pinned exponents
+    fitted = fit(weak.data, choices[rows], start, step_options, 0, len(equation.adjustable))  # theta at the pins
     errors = heldout_errors(weak.val_data, weak.val_rows, choices[rows], fitted)[0]
     keep = [k for k, ok in enumerate(pinned_signs(pins, hypotheses, equation, fitted.theta[0], nominal))
             if ok and bool(torch.isfinite(errors[k]).all())]

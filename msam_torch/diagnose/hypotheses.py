@@ -10,10 +10,14 @@ a copy of every adjustable component, and the adjustment set F plus two constant
   ``theta_i M_i`` and a copy ``theta_i' M_i |f|^gamma`` with its own exponent and theta, started
   at several exponents away from 0 (at 0 the copies coincide and never separate);
 - ``exchange``: an additive copy ``theta_i' s|s|^gamma`` of a signal ``s`` that the equation
-  exchanges with a reference of the same quantity (``-h (T - Ta)``: heat with the ambient), plus a
-  fitted constant: the law of an exchange is ``c (s|s|^gamma - r|r|^gamma)``, and the reference's
-  part is a constant plus a linear term that its own component already carries, to first order in
-  the reference's variation. Without the constant the copy's exponent bends to mimic it.
+  exchanges with a reference ``r`` of the same quantity (``-h (T - Ta)``: heat with the ambient),
+  plus a fitted constant and a fitted multiple of ``r^2``: the law of an exchange is
+  ``c (s|s|^gamma - r|r|^gamma)``, and the reference's part is, to second order in the reference's
+  variation, a constant, a linear term that its own component already carries and a square (the
+  units of ``s`` and ``r`` may differ: each term has its own theta). Without the constant the
+  copy's exponent bends to mimic it; without the square, to mimic the curvature of the
+  reference's law where the reference varies (an ambient temperature drifting by a few kelvin
+  moves ``Ta^4`` by as much as the curvature of ``T^4`` that tells the exponent).
 
 The fit is variable projection (theta re-solved every step) with damped Gauss-Newton steps on
 gamma, taken by :func:`msam_torch.step.step` on all trials and hypotheses at once.
@@ -44,6 +48,7 @@ class Hypothesis:
     component: int | None = None
     function: int | None = None
     start: float = 0.0
+    references: tuple[str, ...] = ()  # an exchange's references (signals its component exchanges with)
 
     def label(self, equation: Equation) -> str:
         if self.kind == "retuned":
@@ -53,21 +58,30 @@ class Hypothesis:
         if self.kind == "multiplicative":
             return f"{term} -> {term}*{f}^gamma"
         if self.kind == "exchange":
-            return f"{term} + {term}*{f}^gamma + constant"
+            return f"{term} + {term}*{f}^gamma + constant" + "".join(f" + {r}^2" for r in self.references)
         return f"{term} + {term}*{f}^gamma"
 
 
-def extended_equation(equation: Equation, exchange: bool = False) -> Equation:
-    """Starting components + a copy of every adjustable one (+ the constant ``1`` of exchange
-    hypotheses); F + the constants 1 and 0."""
+def references(hypotheses: list[Hypothesis]) -> tuple[str, ...] | None:
+    """The exchange hypotheses' references, in order (None without exchange hypotheses)."""
+    exchanges = [h for h in hypotheses if h.kind == "exchange"]
+    return tuple(sorted({r for h in exchanges for r in h.references})) if exchanges else None
+
+
+def extended_equation(equation: Equation, references: tuple[str, ...] | None = None) -> Equation:
+    """Starting components + a copy of every adjustable one (+, for exchange hypotheses with
+    ``references`` (:func:`references`), the constant ``1`` and the square of each reference);
+    F + the constants 1 and 0."""
     copies = tuple(replace(equation.components[i], adjustable=True) for i in equation.adjustable)
     constants = (parse("1", "diagnose", set()), parse("0", "diagnose", set()))
-    offset = (Component(term=constants[0], theta=constants[1]),) if exchange else ()
+    offset = () if references is None else (Component(term=constants[0], theta=constants[1]),) + tuple(
+        Component(term=parse(f"{r}^2", "diagnose", {r}), theta=constants[1]) for r in references)
     return Equation(equation.target, equation.components + copies + offset, equation.adjustments + constants)
 
 
-def enumerate_hypotheses(equation: Equation, exchanging: tuple[int, ...] = (), starts=ADDITIVE_STARTS) -> list[Hypothesis]:
-    """Every hypothesis of ``equation``; ``exchanging``: the components with an exchange partner
+def enumerate_hypotheses(equation: Equation, exchanging: dict[int, tuple[str, ...]] | None = None,
+                         starts=ADDITIVE_STARTS) -> list[Hypothesis]:
+    """Every hypothesis of ``equation``; ``exchanging``: the components with exchange references
     (:meth:`.catalogue.Roles.exchanging`), each also tried as an exchange law of its own signal."""
     found = [Hypothesis("retuned")]
     for i in equation.adjustable:
@@ -76,19 +90,21 @@ def enumerate_hypotheses(equation: Equation, exchanging: tuple[int, ...] = (), s
     for i in equation.adjustable:
         for f in range(len(equation.adjustments)):
             found.extend(Hypothesis("additive", i, f, s) for s in starts)
-    for i in exchanging:
+    for i, partners in (exchanging or {}).items():
         for f, a in enumerate(equation.adjustments):
             if a.is_magnitude and a.inner_text == equation.components[i].term.text:
-                found.extend(Hypothesis("exchange", i, f, s) for s in starts)
+                found.extend(Hypothesis("exchange", i, f, s, partners) for s in starts)
     return found
 
 
 def encode(equation: Equation, hypotheses: list[Hypothesis], device=None):
-    """Choices (C, 2Q [+1]) into the extended adjustment set, and starting exponents: the slots of
-    the components, of their copies and, with exchange hypotheses, of the constant."""
+    """Choices (C, 2Q [+ 1 + R]) into the extended adjustment set, and starting exponents: the slots
+    of the components, of their copies and, with exchange hypotheses, of the constant and the R
+    references' squares (:func:`extended_equation`)."""
     q, n_f = len(equation.adjustable), len(equation.adjustments)
     one, zero = n_f, n_f + 1
-    width = 2 * q + any(h.kind == "exchange" for h in hypotheses)
+    shared = references(hypotheses)
+    width = 2 * q + (0 if shared is None else 1 + len(shared))
     choices = torch.full((len(hypotheses), width), zero, dtype=torch.long)
     choices[:, :q] = one
     starts = torch.zeros(len(hypotheses), width, dtype=torch.float64)
@@ -101,6 +117,8 @@ def encode(equation: Equation, hypotheses: list[Hypothesis], device=None):
             starts[c, q + slot[h.component]] = h.start
         if h.kind == "exchange":
             choices[c, 2 * q] = one
+            for r in h.references:
+                choices[c, 2 * q + 1 + shared.index(r)] = one
     return choices.to(device), starts.to(device)
 
 
@@ -115,8 +133,10 @@ class Fitted:
     invalid: torch.Tensor  # (T, C) diverged, non-finite or a log pair
 
 
-def fit(data: EquationData, choices: torch.Tensor, start: torch.Tensor, options: StepOptions, steps: int) -> Fitted:
-    """Iterate the step on every trial and hypothesis; keep each one's best state (Algorithm 1)."""
+def fit(data: EquationData, choices: torch.Tensor, start: torch.Tensor, options: StepOptions, steps: int,
+        q: int) -> Fitted:
+    """Iterate the step on every trial and hypothesis; keep each one's best state (Algorithm 1);
+    ``q`` adjustable components (slots q to 2q are their additive copies, :func:`encode`)."""
     selection = data.select(choices)
     t = selection.y.shape[0]
     gamma = start.expand((t,) + choices.shape).to(selection.y.dtype).clone()
@@ -132,9 +152,8 @@ def fit(data: EquationData, choices: torch.Tensor, start: torch.Tensor, options:
         best_fitness = torch.where(improved, current.fitness, best_fitness)
         best_gamma = torch.where(improved.unsqueeze(-1), state.gamma, best_gamma)
     final = evaluate(selection, replace(state, gamma=best_gamma), options)
-    q = choices.shape[-1] // 2
-    copy_on = choices[:, q:] < data.log_f.shape[-1] - 2  # additive slots in use (the constant's is never)
-    log_pair = (copy_on & (best_gamma[..., q:].abs() < COLLINEAR)).any(-1)
+    copy_on = choices[:, q:2 * q] < data.log_f.shape[-1] - 2  # additive slots in use
+    log_pair = (copy_on & (best_gamma[..., q:2 * q].abs() < COLLINEAR)).any(-1)
     invalid = state.diverged | ~torch.isfinite(best_fitness) | log_pair
     return Fitted(best_gamma, final.theta, final.theta_fixed, best_fitness, invalid)
 

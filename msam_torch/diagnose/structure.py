@@ -69,8 +69,7 @@ def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, o
     fewer than :data:`FEWEST_ROWS` independent rows. ``failed`` names the checks missed."""
     residual = (weak.val_data.y[0] - predict_rows(weak.val_data, choices, original)[0, 0])
     rows = torch.nonzero(weak.val_rows).squeeze(-1)
-    apart = math.ceil((weak.val_tests.kernels.shape[-1] + reach) / weak.val_tests.stride)
-    rows = rows[::apart]
+    rows = rows[::weak.apart(reach)]
     out = {"independent_rows": int(rows.numel()), "ljung_box_p": None, "input_correlation_p": None,
            "structure_share": None, "failed": []}
     if float(residual[weak.val_rows].square().mean().sqrt()) <= negligible * weak.target_rms:

@@ -74,7 +74,8 @@ def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
     model the verdict rests on diverged, or is worse than the nominal model by more than
     :data:`NO_WORSE` and the resolution the free runs are checked to (:data:`~.options.AGREEMENT`)
     (where the nominal model diverged: is no closer to the record than its mean,
-    :data:`NO_INFORMATION`), or the runs did not converge. An explained gap rests on the adapted model, any other verdict
+    :data:`NO_INFORMATION`), or the runs it rests on did not converge (its model's, and the nominal
+    model's where that decides the comparison, :func:`_needed`). An explained gap rests on the adapted model, any other verdict
     on the theta re-fitted start: a re-fit of a structure that misses an effect compensates for it
     on the training excitation and may simulate other data worse than the nominal theta, and a
     nominal model that diverges is a finding; neither undoes an explanation whose adapted model
@@ -86,9 +87,11 @@ def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
     diverged, nrmse = entry["diverged"], entry["nrmse"]
     model = "adapted" if kind is Verdict.EXPLAINED else "retuned"
     reasons = [f"the {_MODEL[model]} model's free run on {label} data diverged"] if model in diverged else []
-    if not entry["solver"]["converged"]:
-        reasons.append(f"the free runs did not converge when the {entry['solver']['method']} step was halved to "
-                       f"{entry['solver']['step']:.3g}")
+    unsettled = [m for m in entry["solver"]["unconverged"] if m == model or (m == "start" and _needed(nrmse, model))]
+    if unsettled:
+        reasons.append(f"the free runs of the {' and '.join(_MODEL[m] for m in unsettled)} model"
+                       f"{'s' if len(unsettled) > 1 else ''} did not converge when the {entry['solver']['method']} "
+                       f"step was halved to {entry['solver']['step']:.3g}")
     if reasons:
         return reasons + [TRY["diverged"]]
     if "start" in diverged and nrmse[model] >= NO_INFORMATION:
@@ -98,6 +101,14 @@ def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
         return [f"the {_MODEL[model]} model's free run on {label} data is worse than the nominal model's "
                 f"(NRMSE {nrmse[model]:.3g} vs {nrmse['start']:.3g}): {_WORSE[model]}", TRY["estimation"]]
     return []
+
+
+def _needed(nrmse: dict, model: str) -> bool:
+    """Whether the nominal model's free-run NRMSE decides the comparison with ``model``'s: not when
+    it diverged, nor when it is no closer to the record than its mean (:data:`NO_INFORMATION`)
+    while ``model``'s is (a run that far off says only that, and its exact value does not matter)."""
+    start, own = nrmse["start"], nrmse[model]
+    return start is not None and not (own is not None and start >= NO_INFORMATION > own)
 
 
 _MODEL = {"start": "starting", "retuned": "theta re-fitted", "adapted": "adapted"}

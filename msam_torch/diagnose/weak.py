@@ -2,6 +2,7 @@
 (:class:`WeakForm`); the form itself is :mod:`msam_torch.weak`."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -61,6 +62,15 @@ class WeakForm:
     def y_val(self) -> torch.Tensor:
         """The held-out rows' targets (M',)."""
         return self.val_data.y[0][self.val_rows]
+
+    def apart(self, reach: int = 0) -> int:
+        """Held-out rows apart by which their errors are independent under white measurement noise:
+        the test functions' length plus ``reach`` samples (the window of a derivative estimate)."""
+        return math.ceil((self.val_tests.kernels.shape[-1] + reach) / self.val_tests.stride)
+
+    def independent_rows(self, reach: int = 0) -> int:
+        """How many held-out rows :meth:`apart` from each other there are."""
+        return -(-int(self.val_rows.sum()) // self.apart(reach))
 
     @property
     def target_rms(self) -> float:
