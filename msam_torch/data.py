@@ -290,7 +290,8 @@ def decimate_oversampled(t: np.ndarray, measured: dict, info: dict,
 def check_time(frame: pd.DataFrame, t: np.ndarray, measured: dict, source: str, config: DataConfig,
                estimated: bool, info: dict) -> tuple[np.ndarray, dict, dict]:
     """Strictly increasing time; a uniform grid where derivatives are estimated (or resampled)."""
-    steps = np.diff(t)
+    with np.errstate(over="ignore"):  # a step beyond the float range is infinite: still a sign to check
+        steps = np.diff(t)
     where = "time column " + repr(config.time) if config.time else "time"
     duplicated = np.flatnonzero(steps == 0)
     if duplicated.size:
