@@ -106,14 +106,14 @@ def recorded(dataset) -> dict:
 
 def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: DiagnoseOptions, band: float,
                    starts: dict) -> tuple:
-    """Free runs from each set's first state (``starts[label]``, else the set's) under its inputs; sets on the same time
-    grid are integrated in one batch. A fixed-step solver without a given step starts at
+    """Free runs from each set's first state (``starts[label]``, else the set's) under its inputs;
+    sets on the same time grid are integrated in one batch. A fixed-step solver without a given step starts at
     :data:`PER_PERIOD` of the band's period (at most 1/:data:`STEPS` of the record) and halves it
     until the three point models' runs at the step and at twice it agree (:func:`converged`) over
     the first :data:`CHECK_STEPS` steps, at most :data:`HALVINGS` times (each set's ``solver``
     entry says whether they agreed, and ``unconverged`` which did not): the step follows the
-    dynamics, not the record's length or sampling, so the cost grows linearly with the record. An adaptive solver keeps its
-    tolerances, ``atol`` relative to each state's measured magnitude."""
+    dynamics, not the record's length or sampling, so the cost grows linearly with the record. An
+    adaptive solver keeps its tolerances, ``atol`` relative to each state's measured magnitude."""
     grids = {label: d.signals["t"] for label, d in sets.items()}
     same = len(sets) == 2 and grids["train"].shape == grids["held_out"].shape and torch.allclose(
         grids["train"], grids["held_out"])

@@ -72,14 +72,15 @@ def summary(rmse: torch.Tensor, names: list[str], best: int, is_significant: boo
     margin = float((rmse[runner] - reference) / reference) if runner is not None and reference > 0 else float("inf")
     rival = next((c for c in ranked if names[c] != names[best] and c != 0 and bool(is_effect[c])), None) \
         if is_significant else None
+    labels = names
     if is_significant and pinned is not None:
         errors = torch.cat([errors, pinned[0]])
-        names = names + [f"{name} at its catalogue exponent" for name in pinned[1]]
+        labels = names + [f"{name} at its catalogue exponent" for name in pinned[1]]
         others = [rmse.shape[0] + k for k, name in enumerate(pinned[1]) if name != names[best]]
         rival = min(([] if rival is None else [rival]) + others, key=lambda c: float(errors[c].square().mean()),
                     default=None)
     return {"margin": margin, "runner_up": names[runner] if runner is not None and is_significant else None,
-            "rival": None if rival is None else names[rival],
+            "rival": None if rival is None else labels[rival],
             "apart_p": 0.0 if rival is None else told_apart(errors, best, rival, blocks, generator),
             "win_frequency": frequency, "bootstrap_trials": len(trial_outcomes),
             "outcomes": {o: trial_outcomes.count(o) for o in sorted(set(trial_outcomes))}}

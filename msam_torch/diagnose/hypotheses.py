@@ -151,7 +151,7 @@ def fit(data: EquationData, choices: torch.Tensor, start: torch.Tensor, options:
         improved = current.fitness > best_fitness
         best_fitness = torch.where(improved, current.fitness, best_fitness)
         best_gamma = torch.where(improved.unsqueeze(-1), state.gamma, best_gamma)
-    final = evaluate(selection, replace(state, gamma=best_gamma), options)
+    final = evaluate(selection, replace(state, gamma=best_gamma), options) if steps else current
     copy_on = choices[:, q:2 * q] < data.log_f.shape[-1] - 2  # additive slots in use
     log_pair = (copy_on & (best_gamma[..., q:2 * q].abs() < COLLINEAR)).any(-1)
     invalid = state.diverged | ~torch.isfinite(best_fitness) | log_pair

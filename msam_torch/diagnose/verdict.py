@@ -85,7 +85,7 @@ def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
     label = "held_out" if "held_out" in free_run else "train"
     entry = free_run[label]
     diverged, nrmse = entry["diverged"], entry["nrmse"]
-    model = "adapted" if kind is Verdict.EXPLAINED else "retuned"
+    model = rests_on(kind)
     reasons = [f"the {_MODEL[model]} model's free run on {label} data diverged"] if model in diverged else []
     unsettled = [m for m in entry["solver"]["unconverged"] if m == model or (m == "start" and _needed(nrmse, model))]
     if unsettled:
@@ -101,6 +101,12 @@ def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
         return [f"the {_MODEL[model]} model's free run on {label} data is worse than the nominal model's "
                 f"(NRMSE {nrmse[model]:.3g} vs {nrmse['start']:.3g}): {_WORSE[model]}", TRY["estimation"]]
     return []
+
+
+def rests_on(kind: Verdict) -> str:
+    """The model a verdict of ``kind`` rests on: the adapted one for an explained gap, else the
+    theta re-fitted start (:func:`free_run_reasons`)."""
+    return "adapted" if kind is Verdict.EXPLAINED else "retuned"
 
 
 def _needed(nrmse: dict, model: str) -> bool:

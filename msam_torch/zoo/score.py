@@ -11,8 +11,8 @@ zoo case's truth.
 - the theta re-fitted starting model: every theta within 3 % of the truth (null cases);
 - held-out free runs: the re-fitted start no worse than the nominal one (1 % slack), and a
   *diverged* run (NRMSE not finite or above :data:`DIVERGED`) beside a verdict that is not
-  "inconclusive": of any model, and of the model the verdict rests on (the re-fitted start for
-  "no significant gap", the adapted model otherwise);
+  "inconclusive": of any model, and of the model the verdict rests on
+  (:func:`~msam_torch.diagnose.verdict.rests_on`);
 - cases withholding several effects (:mod:`.pairs`): how many of them the effects added in turn
   (the report's ``in_turn``) found, in any order; every case: the *spurious* effects added in turn
   (matching no withheld effect).
@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import math
 import re
+
+from ..diagnose.verdict import Verdict, rests_on
 
 TOLERANCE = 0.2  # exponent tolerance of the catalogue (msam_torch.diagnose.catalogue.TOLERANCE)
 THETA_TOLERANCE = 0.03
@@ -95,9 +97,9 @@ def score(report, truth: dict) -> dict:
         nrmse = {k: float(v) if v is not None else math.inf for k, v in free.items()}
         diverged = any(not math.isfinite(v) or v > DIVERGED for v in nrmse.values())
         out["diverged_beside_verdict"] = diverged and "inconclusive" not in r["verdict"]
-        rests_on = "retuned" if r.get("verdict_kind") == "no_gap" else "adapted"
+        own = rests_on(Verdict(r["verdict_kind"]))
         out["own_run_diverged"] = ("inconclusive" not in r["verdict"]
-                                   and not (math.isfinite(nrmse[rests_on]) and nrmse[rests_on] <= DIVERGED))
+                                   and not (math.isfinite(nrmse[own]) and nrmse[own] <= DIVERGED))
         out["retuned_no_worse"] = (math.isfinite(nrmse["retuned"])
                                    and nrmse["retuned"] <= (1 + NO_WORSE_SLACK) * nrmse["start"])
         out["free_run_nrmse"] = nrmse
