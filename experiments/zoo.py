@@ -51,12 +51,12 @@ def run_diagnosis(config: Path, train: Path, validation: Path):
 
 def _naming(gap) -> dict | None:
     """What a flagged equation's name rests on: total exponent, its bootstrap half-width, the
-    catalogue's exponent, the bootstrap trials' outcomes and the rival told apart on held-out data."""
+    catalogue's exponent, the bootstrap trials' outcomes and the rival told apart on out-of-sample rows."""
     if gap.naming is None:
         return None
     keys = ("effect", "total_exponent", "half_width", "catalogue_exponent")
     return {**{k: gap.naming.get(k) for k in keys}, **{k: gap.confidence.get(k) for k in
-                                                        ("win_frequency", "outcomes", "rival", "apart_p")}}
+                                                        ("win_frequency", "outcomes", "rival", "apart_p", "apart_p_held_out", "apart_p_training")}}
 
 
 class Timeout(Exception):

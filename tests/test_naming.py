@@ -232,20 +232,21 @@ def test_pinned_rivals_are_the_single_valued_entries_a_hypothesis_admits():
 
 def test_a_name_is_told_apart_from_another_entry_at_its_catalogue_exponent():
     """The free fits hold no rival with another name, but the hypothesis pinned at another entry's
-    exponent predicts the held-out rows as well: that entry is the rival and the p-value is high;
-    a pinned fit of the winner's own entry is no rival, and a far worse one is told apart."""
-    from msam_torch.diagnose.confidence import summary
+    exponent predicts the out-of-sample rows as well: that entry is the rival and the p-value is
+    high; a pinned fit of the winner's own entry is no rival, and a far worse one is told apart."""
+    from msam_torch.diagnose.confidence import Evidence, summary
 
     generator = torch.Generator().manual_seed(0)
     base = torch.sin(torch.linspace(0, 20, 400, dtype=torch.float64))
     errors = torch.stack([3 * base, base, 1.5 * base])  # re-fitted start, the winner, an uncatalogued fit
+    evidence = lambda e: Evidence(e, e.clone(), (10, 10))
     rmse = errors.square().mean(-1).sqrt()
     names, effect = ["no significant gap", "power-law damping", "power law, no catalogued effect"], torch.tensor([False, True, False])
-    args = (rmse, names, 1, True, "power-law damping", [], effect, errors, 10, generator)
+    args = (rmse, names, 1, True, "power-law damping", [], effect, evidence(errors), 0.05, generator)
     alone = summary(*args)
     assert alone["rival"] is None and alone["apart_p"] == 0.0
     wobble = 0.05 * torch.cos(torch.linspace(0, 200, 400, dtype=torch.float64))
-    close = summary(*args, (torch.stack([base + wobble, 0.9 * base]), ["quadratic drag", "power-law damping"]))
+    close = summary(*args, (evidence(torch.stack([base + wobble, 0.9 * base])), ["quadratic drag", "power-law damping"]))
     assert close["rival"] == "quadratic drag at its catalogue exponent" and close["apart_p"] > 0.2
-    far = summary(*args, (torch.stack([2 * base]), ["quadratic drag"]))
+    far = summary(*args, (evidence(torch.stack([2 * base])), ["quadratic drag"]))
     assert far["rival"] == "quadratic drag at its catalogue exponent" and far["apart_p"] == 0.5**10  # every block

@@ -1,6 +1,6 @@
 """How sure a selection is: the null-verdict rule for a significant effect, the bootstrap trials'
 outcomes and how often the named effect wins them, the margin to the best other name and whether
-the held-out data tell the two apart.
+rows no fit saw tell the winner from every hypothesis with another name.
 
 Null-verdict rule (docs/design.md section 3): an effect is reported only if its held-out RMSE beats the
 theta-refitted starting model by at least ``relative`` (5 %) and by ``absolute`` (0.2 %) of the
@@ -8,12 +8,14 @@ held-out target's RMS.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 
 from .options import DiagnoseOptions
 from .verdict import Verdict
 
-RESAMPLES = 1000  # block-bootstrap resamples of the held-out rows (:func:`told_apart`)
+RESAMPLES = 1000  # block-bootstrap resamples of out-of-sample rows (:func:`told_apart`)
 
 
 def significant(rmse: torch.Tensor, retuned: torch.Tensor, target_rms: float, relative: float = 0.05,
@@ -42,45 +44,80 @@ def outcomes(names: list[list[str]], rmse: torch.Tensor, is_effect: torch.Tensor
     return found
 
 
-def told_apart(errors: torch.Tensor, best: int, rival: int, blocks: int, generator: torch.Generator) -> float:
-    """The share of block-bootstrap resamples of the held-out rows on which hypothesis ``rival``
-    predicts at least as well as ``best`` (sum of squared ``errors`` (C, M)): a one-sided p-value
-    that ``best`` is no better. :data:`RESAMPLES` draws of ``blocks`` contiguous blocks of rows,
-    each drawn with replacement; ``blocks`` is the number of independent held-out rows (rows within
-    a test function's reach share their errors, :meth:`.weak.WeakForm.independent_rows`), and the
-    p-value is at least 2^-blocks, the chance that ``best`` wins every block when neither is better."""
+@dataclass(frozen=True)
+class Evidence:
+    """Out-of-sample errors of every hypothesis: on the held-out rows (C, M') and on the fitted
+    training rows, each predicted by a fit of the other blocks (C, M,
+    :func:`.hypotheses.crossed_errors`), with the number of independent rows of each."""
+
+    held_out: torch.Tensor
+    crossed: torch.Tensor
+    blocks: tuple[int, int]
+
+    def extended(self, more: "Evidence") -> "Evidence":
+        """This evidence and ``more`` hypotheses' on the same rows."""
+        return Evidence(torch.cat([self.held_out, more.held_out]), torch.cat([self.crossed, more.crossed]), self.blocks)
+
+    def take(self, keep: list[int]) -> "Evidence":
+        return Evidence(self.held_out[keep], self.crossed[keep], self.blocks)
+
+
+def told_apart(errors: torch.Tensor, best: int, rival: int, blocks: int, generator: torch.Generator,
+               margin: float = 0.0) -> float:
+    """The share of block-bootstrap resamples of out-of-sample rows on which hypothesis ``rival``
+    predicts within ``margin`` of ``best`` (its root sum of squared ``errors`` (C, M) at most
+    ``1 / (1 - margin)`` times the best's; a non-finite error counts for the rival): a one-sided
+    p-value that ``best`` is not better by the margin. :data:`RESAMPLES` draws of ``blocks``
+    contiguous blocks of rows, each drawn with replacement; ``blocks`` is the number of independent
+    rows (rows within a test function's reach share their errors, :meth:`.weak.WeakForm.apart`),
+    and the p-value is at least 2^-blocks, the chance that ``best`` wins every block when neither
+    is better."""
     square = lambda c: torch.stack([part.square().sum() for part in torch.tensor_split(errors[c], blocks)])
     draws = torch.randint(0, blocks, (RESAMPLES, blocks), generator=generator).to(errors.device)
-    share = float((square(rival)[draws].sum(-1) <= square(best)[draws].sum(-1)).double().mean())
-    return max(share, 0.5**blocks)
+    within = ~(square(best)[draws].sum(-1) < (1 - margin) ** 2 * square(rival)[draws].sum(-1))
+    return max(float(within.double().mean()), 0.5**blocks)
+
+
+def apart(evidence: Evidence, best: int, others: list[int], relative: float,
+          generator: torch.Generator) -> tuple[int | None, dict]:
+    """The hypothesis of ``others`` hardest to tell ``best`` from, and the p-values: each is told
+    apart by the held-out rows (:func:`told_apart`) or by the crossed training rows at the null
+    rule's margin ``relative`` (rows of the training excitation share the estimator's bias with
+    every fit on them, so a preference there must also be relevant in size); its p-value is the
+    lesser of the two, and the rival's is the greatest (0 without others)."""
+    found, rival = {"apart_p": 0.0, "apart_p_held_out": 0.0, "apart_p_training": 0.0}, None
+    for c in others:
+        held = told_apart(evidence.held_out, best, c, evidence.blocks[0], generator)
+        crossed = told_apart(evidence.crossed, best, c, evidence.blocks[1], generator, relative)
+        if rival is None or min(held, crossed) > found["apart_p"]:
+            found, rival = {"apart_p": min(held, crossed), "apart_p_held_out": held, "apart_p_training": crossed}, c
+    return rival, found
 
 
 def summary(rmse: torch.Tensor, names: list[str], best: int, is_significant: bool, outcome: str,
-            trial_outcomes: list[str], is_effect: torch.Tensor, errors: torch.Tensor, blocks: int,
-            generator: torch.Generator, pinned: tuple[torch.Tensor, list[str]] | None = None) -> dict:
+            trial_outcomes: list[str], is_effect: torch.Tensor, evidence: Evidence, relative: float,
+            generator: torch.Generator, pinned: tuple[Evidence, list[str]] | None = None) -> dict:
     """The report's ``confidence``: ``margin`` (held-out RMSE of the best hypothesis with another
-    name, relative to the chosen one's), ``runner_up``; ``rival``, the best effect hypothesis
-    (``is_effect``) with another name (an uncatalogued power law too) or, better still on the
-    held-out rows, a hypothesis ``pinned`` at another entry's catalogue exponent (its errors
-    (P, M) and names), and ``apart_p`` (:func:`told_apart` on the held-out ``errors`` (C, M); 0
-    without a rival); ``win_frequency`` of ``outcome`` over the bootstrap trials (NaN without
-    trials) and the ``outcomes`` counted."""
+    name, relative to the chosen one's), ``runner_up``; ``rival``, of the effect hypotheses
+    (``is_effect``) with another name (an uncatalogued power law too) and the hypotheses ``pinned``
+    at another entry's catalogue exponent (their evidence and names), the one hardest to tell
+    apart on out-of-sample ``evidence`` (:func:`apart`: ``apart_p``, ``apart_p_held_out``,
+    ``apart_p_training``; 0 without a rival); ``win_frequency`` of ``outcome`` over the bootstrap
+    trials (NaN without trials) and the ``outcomes`` counted."""
     frequency = win_frequency(trial_outcomes, outcome) if trial_outcomes else float("nan")
     ranked = [int(c) for c in torch.argsort(rmse) if torch.isfinite(rmse[c])]
     runner = next((c for c in ranked if names[c] != names[best] and c != 0), None) if is_significant else best
     reference = rmse[best] if is_significant else rmse[0]
     margin = float((rmse[runner] - reference) / reference) if runner is not None and reference > 0 else float("inf")
-    rival = next((c for c in ranked if names[c] != names[best] and c != 0 and bool(is_effect[c])), None) \
-        if is_significant else None
-    labels = names
-    if is_significant and pinned is not None:
-        errors = torch.cat([errors, pinned[0]])
-        labels = names + [f"{name} at its catalogue exponent" for name in pinned[1]]
-        others = [rmse.shape[0] + k for k, name in enumerate(pinned[1]) if name != names[best]]
-        rival = min(([] if rival is None else [rival]) + others, key=lambda c: float(errors[c].square().mean()),
-                    default=None)
+    others, labels = [], names
+    if is_significant:
+        others = [c for c in ranked if names[c] != names[best] and c != 0 and bool(is_effect[c])]
+        if pinned is not None:
+            evidence = evidence.extended(pinned[0])
+            labels = names + [f"{name} at its catalogue exponent" for name in pinned[1]]
+            others += [rmse.shape[0] + k for k, name in enumerate(pinned[1]) if name != names[best]]
+    rival, found = apart(evidence, best, others, relative, generator)
     return {"margin": margin, "runner_up": names[runner] if runner is not None and is_significant else None,
-            "rival": None if rival is None else labels[rival],
-            "apart_p": 0.0 if rival is None else told_apart(errors, best, rival, blocks, generator),
+            "rival": None if rival is None else labels[rival], **found,
             "win_frequency": frequency, "bootstrap_trials": len(trial_outcomes),
             "outcomes": {o: trial_outcomes.count(o) for o in sorted(set(trial_outcomes))}}

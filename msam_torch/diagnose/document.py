@@ -215,7 +215,8 @@ def _named(naming: dict) -> list[str]:
 
 def margin(confidence: dict) -> str:
     """The held-out RMSE margin to the best hypothesis with another name, if there is one, and how
-    often the best effect hypothesis with another name predicts as well (:func:`.confidence.told_apart`)."""
+    often the rival predicts as well on held-out rows and within the margin on cross-fitted training
+    rows (:func:`.confidence.apart`)."""
     if confidence["runner_up"] is None:
         return "no competing hypothesis with another name"
     rival, runner = confidence.get("rival"), confidence["runner_up"]
@@ -223,7 +224,8 @@ def margin(confidence: dict) -> str:
     if rival is None:
         return text
     who = ", it" if rival == runner else f"; {rival}"
-    return f"{text}{who} as good in {100 * confidence['apart_p']:.0f} % of held-out resamples"
+    return (f"{text}{who} as good in {100 * confidence['apart_p_held_out']:.0f} % of held-out resamples and within "
+            f"the margin in {100 * confidence['apart_p_training']:.0f} % of cross-fitted training ones")
 
 
 def _percent(share: float) -> str:

@@ -19,7 +19,7 @@ from .bootstrap import bootstrap
 from .compare import models
 from ..estimation import Estimation
 from .hypotheses import (Fitted, Hypothesis, encode, enumerate_hypotheses, exponent, extended_equation, fit,
-                         fitted_text, heldout_errors, heldout_rmse, references, slot)
+                         fitted_text, heldout_errors, heldout_rmse, crossed_errors, references, slot)
 from .intervals import term_intervals
 from .localise import starting_where
 from .naming import Naming, name_hypotheses, pinned, pinned_signs
@@ -80,10 +80,19 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     trial_outcomes = []
     if boot is not None:
         trial_outcomes = confidence.outcomes([names] * boot.rmse.shape[0], boot.rmse, is_effect, target_rms, options)
-    rivals = _pinned_rivals(spec, equation, hypotheses, weak, choices, starts, step_options, nominal) \
-        if is_significant else None
-    sure = confidence.summary(rmse, names, best, is_significant, outcome, trial_outcomes, is_effect, errors,
-                              weak.independent_rows(estimation.reach), generator, rivals)
+    # the evidence a name is told apart on: held-out rows, and training rows each predicted by a fit of the others
+    q, reach = len(equation.adjustable), estimation.reach
+    crossed = torch.full((len(hypotheses), int(weak.fit_rows.sum())), torch.nan, dtype=t.dtype, device=t.device)
+    rivals = None
+    if is_significant:
+        effects = is_effect.nonzero().squeeze(-1)
+        crossed[effects] = crossed_errors(weak, choices[effects], original.gamma[0, effects], step_options,
+                                          options.bootstrap_steps, q, options.blocks, reach)
+        rivals = _pinned_rivals(spec, equation, hypotheses, weak, choices, starts, step_options, nominal,
+                                options.blocks, reach)
+    evidence = confidence.Evidence(errors, crossed, weak.independence(reach))
+    sure = confidence.summary(rmse, names, best, is_significant, outcome, trial_outcomes, is_effect, evidence,
+                              options.relative, generator, rivals)
 
     # verdict (with the residual structure the effect leaves), and where the starting model fails
     structure = structure_left(equation, weak, choices, original, best)
@@ -121,9 +130,10 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
 
 def _pinned_rivals(spec: ModelSpec, equation: Equation, hypotheses: list[Hypothesis], weak: WeakForm,
                    choices: torch.Tensor, starts: torch.Tensor, step_options: StepOptions,
-                   nominal: torch.Tensor) -> tuple[torch.Tensor, list[str]] | None:
-    """Held-out errors (P, M') and entry names of the effect hypotheses pinned at catalogue exponents
-    (:func:`.naming.pinned`) whose fitted theta has the sign their entry asks; None without any."""
+                   nominal: torch.Tensor, folds: int, reach: int) -> tuple[confidence.Evidence, list[str]] | None:
+    """Out-of-sample evidence (:class:`.confidence.Evidence`) and entry names of the effect
+    hypotheses pinned at catalogue exponents (:func:`.naming.pinned`) whose fitted theta has the
+    sign their entry asks and whose held-out errors are finite; None without any."""
     pins = pinned(spec, equation, hypotheses)
     if not pins:
         return None
@@ -131,11 +141,16 @@ def _pinned_rivals(spec: ModelSpec, equation: Equation, hypotheses: list[Hypothe
     start = starts[rows].clone()
     for k, p in enumerate(pins):
         start[k, slot(equation, hypotheses[p.hypothesis])] = p.gamma
-    fitted = fit(weak.data, choices[rows], start, step_options, 0, len(equation.adjustable))  # theta at the pins
-    errors = heldout_errors(weak.val_data, weak.val_rows, choices[rows], fitted)[0]
+    q = len(equation.adjustable)
+    fitted = fit(weak.data, choices[rows], start, step_options, 0, q)  # theta at the pins
+    held_out = heldout_errors(weak.val_data, weak.val_rows, choices[rows], fitted)[0]
     keep = [k for k, ok in enumerate(pinned_signs(pins, hypotheses, equation, fitted.theta[0], nominal))
-            if ok and bool(torch.isfinite(errors[k]).all())]
-    return (errors[keep], [pins[k].entry.name for k in keep]) if keep else None
+            if ok and bool(torch.isfinite(held_out[k]).all())]
+    if not keep:
+        return None
+    crossed = crossed_errors(weak, choices[rows], fitted.gamma[0], step_options, 0, q, folds, reach)
+    evidence = confidence.Evidence(held_out, crossed, weak.independence(reach))
+    return evidence.take(keep), [pins[k].entry.name for k in keep]
 
 
 def _components(equation: Equation, hypotheses: list[Hypothesis], rmse: torch.Tensor) -> list[dict]:

@@ -33,6 +33,7 @@ from ..expressions import parse
 from ..result import format_component, format_equation
 from ..spec import Component, Equation
 from ..step import State, StepOptions, evaluate, step
+from .weak import WeakForm
 
 ADDITIVE_STARTS = (-0.5, 0.5, 1.5)
 COLLINEAR = 0.15  # |gamma| of an additive copy below which it is a log pair of its original (rejected)
@@ -168,6 +169,18 @@ def predict_rows(data: EquationData, choices: torch.Tensor, fitted: Fitted) -> t
     selection: Selection = data.select(choices)
     cols = columns(selection, fitted.gamma)
     return predict(selection, cols, fitted.theta, fitted.theta_fixed)
+
+
+def crossed_errors(weak: WeakForm, choices: torch.Tensor, start: torch.Tensor, options: StepOptions, steps: int,
+                   q: int, folds: int, reach: int) -> torch.Tensor:
+    """Errors (C, M) of every hypothesis on the fitted training rows, each row predicted by a fit of
+    the other ``folds`` blocks (:meth:`.weak.WeakForm.folds`; ``steps`` steps from the exponents
+    ``start`` (C, 2Q), the full fit's; 0: theta alone)."""
+    fold, weights = weak.folds(folds, reach)
+    crossed = fit(weak.weighted(weights, torch.zeros_like(weights)), choices, start, options, steps, q)
+    rows = predict_rows(weak.data, choices, crossed)  # (folds, C, M); unweighted on the fitted rows
+    fitted = torch.nonzero(fold >= 0).squeeze(-1)
+    return rows[fold[fitted], :, fitted].T - weak.data.y[0][fitted]
 
 
 def heldout_errors(val_data: EquationData, val_rows: torch.Tensor, choices: torch.Tensor, fitted: Fitted) -> torch.Tensor:

@@ -43,8 +43,8 @@ class EquationGap:
     ``description`` and ``reference``, the ``quantities`` involved and the ``assumed_quantities``
     (undeclared, :mod:`.catalogue`); ``*_equation``: the
     starting, theta-retuned and adapted equations; ``confidence``: ``margin`` (held-out RMSE of
-    the best hypothesis with another name, relative), ``runner_up``, the ``rival`` the held-out
-    data must tell the winner from and ``apart_p`` (:func:`.confidence.told_apart`),
+    the best hypothesis with another name, relative), ``runner_up``, the ``rival`` the rows neither was
+    fitted to must tell the winner from and ``apart_p`` (:func:`.confidence.told_apart`),
     ``win_frequency`` over ``bootstrap_trials`` and the ``outcomes`` counted; ``improvement``: held-out weak-form RMSE of
     the retuned and adapted models and the rule applied; ``structure_left``: residual structure
     the adapted model leaves, as a share of the retuned model's; ``components``: adjustable

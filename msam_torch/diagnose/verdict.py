@@ -43,9 +43,9 @@ TRY = {"estimation": "try another --half-width or a held-out record from another
 def equation_verdict(significant: bool, named: bool, confidence: dict, structure_left: float,
                      checks: dict, options: DiagnoseOptions) -> tuple[Verdict, list[str]]:
     """One equation and its reasons: a significant effect (null rule) is explained when it has a
-    catalogue name, predicts the held-out data better than the best effect hypothesis with another
-    name beyond chance (``confidence["apart_p"]`` at most ``options.apart_level``), wins at least
-    ``options.min_win_frequency`` of the bootstrap trials (NaN without trials: not checked) and
+    catalogue name, predicts out-of-sample rows better than every effect hypothesis with another
+    name beyond chance (:func:`.confidence.apart`: ``confidence["apart_p"]`` at most
+    ``options.apart_level``), wins at least ``options.min_win_frequency`` of the bootstrap trials (NaN without trials: not checked) and
     leaves at most ``options.max_structure_left`` of the residual structure; no significant effect
     is "no significant gap" only when the re-fitted start's residual passes ``checks``
     (:func:`~.structure.residual_checks`), else inconclusive."""
@@ -54,7 +54,7 @@ def equation_verdict(significant: bool, named: bool, confidence: dict, structure
     if not named:
         return Verdict.NOT_EXPLAINED, []
     if confidence["apart_p"] > options.apart_level:
-        return Verdict.NOT_EXPLAINED, [f"not told apart from {confidence['rival']} on the held-out data "
+        return Verdict.NOT_EXPLAINED, [f"not told apart from {confidence['rival']} on out-of-sample rows "
                                        f"(p = {confidence['apart_p']:.2g})"]
     if not confidence["win_frequency"] < options.min_win_frequency and structure_left <= options.max_structure_left:
         return Verdict.EXPLAINED, []

@@ -63,14 +63,40 @@ class WeakForm:
         """The held-out rows' targets (M',)."""
         return self.val_data.y[0][self.val_rows]
 
-    def apart(self, reach: int = 0) -> int:
-        """Held-out rows apart by which their errors are independent under white measurement noise:
-        the test functions' length plus ``reach`` samples (the window of a derivative estimate)."""
-        return math.ceil((self.val_tests.kernels.shape[-1] + reach) / self.val_tests.stride)
+    def apart(self, reach: int = 0, tests: TestFunctions | None = None) -> int:
+        """Rows (held out, or of ``tests``) apart by which their errors are independent under white
+        measurement noise: the test functions' length plus ``reach`` samples (the window of a
+        derivative estimate)."""
+        tests = self.val_tests if tests is None else tests
+        return math.ceil((tests.kernels.shape[-1] + reach) / tests.stride)
 
     def independent_rows(self, reach: int = 0) -> int:
         """How many held-out rows :meth:`apart` from each other there are."""
         return -(-int(self.val_rows.sum()) // self.apart(reach))
+
+    def folds(self, k: int, reach: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+        """Blocked ``k``-fold cross-fitting of the training rows (at most a fold per row): ``fold``
+        (M,), the block of contiguous fitted rows each row is in (-1: not fitted), and ``weights``
+        (k, M), each fold's fit: the fitted rows outside its block and not within :meth:`apart` of
+        it (those share its errors), so that every fitted row is predicted once by a fit it took no
+        part in."""
+        position = torch.arange(self.rows, device=self.fit_rows.device)
+        fitted = position[self.fit_rows]
+        k = min(k, fitted.numel())
+        fold = torch.full_like(position, -1)
+        fold[fitted] = torch.div(torch.arange(fitted.numel(), device=fitted.device) * k, fitted.numel(),
+                                 rounding_mode="floor")
+        gap = self.apart(reach, self.tests)
+        weights = []
+        for j in range(k):
+            inside = position[fold == j]
+            far = (position <= int(inside.min()) - gap) | (position >= int(inside.max()) + gap)
+            weights.append(self.fit_rows & far)
+        return fold, torch.stack(weights).to(self.signals["t"].dtype)
+
+    def independence(self, reach: int = 0) -> tuple[int, int]:
+        """How many held-out rows and how many fitted training rows :meth:`apart` from each other there are."""
+        return self.independent_rows(reach), -(-int(self.fit_rows.sum()) // self.apart(reach, self.tests))
 
     @property
     def target_rms(self) -> float:
