@@ -55,8 +55,8 @@ def _naming(gap) -> dict | None:
     if gap.naming is None:
         return None
     keys = ("effect", "total_exponent", "half_width", "catalogue_exponent")
-    return {**{k: gap.naming.get(k) for k in keys}, **{k: gap.confidence.get(k) for k in
-                                                        ("win_frequency", "outcomes", "rival", "apart_p", "apart_p_held_out", "apart_p_training")}}
+    told = ("win_frequency", "outcomes", "rival", "apart_p", "apart_p_held_out", "apart_p_training")
+    return {**{k: gap.naming.get(k) for k in keys}, **{k: gap.confidence.get(k) for k in told}}
 
 
 class Timeout(Exception):

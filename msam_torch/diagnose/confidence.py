@@ -56,7 +56,8 @@ class Evidence:
 
     def extended(self, more: "Evidence") -> "Evidence":
         """This evidence and ``more`` hypotheses' on the same rows."""
-        return Evidence(torch.cat([self.held_out, more.held_out]), torch.cat([self.crossed, more.crossed]), self.blocks)
+        return Evidence(torch.cat([self.held_out, more.held_out]), torch.cat([self.crossed, more.crossed]),
+                        self.blocks)
 
     def take(self, keep: list[int]) -> "Evidence":
         return Evidence(self.held_out[keep], self.crossed[keep], self.blocks)
@@ -90,7 +91,8 @@ def apart(evidence: Evidence, best: int, others: list[int], relative: float,
         held = told_apart(evidence.held_out, best, c, evidence.blocks[0], generator)
         crossed = told_apart(evidence.crossed, best, c, evidence.blocks[1], generator, relative)
         if rival is None or min(held, crossed) > found["apart_p"]:
-            found, rival = {"apart_p": min(held, crossed), "apart_p_held_out": held, "apart_p_training": crossed}, c
+            rival = c
+            found = {"apart_p": min(held, crossed), "apart_p_held_out": held, "apart_p_training": crossed}
     return rival, found
 
 

@@ -224,8 +224,9 @@ def margin(confidence: dict) -> str:
     if rival is None:
         return text
     who = ", it" if rival == runner else f"; {rival}"
-    return (f"{text}{who} as good in {100 * confidence['apart_p_held_out']:.0f} % of held-out resamples and within "
-            f"the margin in {100 * confidence['apart_p_training']:.0f} % of cross-fitted training ones")
+    held, training = 100 * confidence["apart_p_held_out"], 100 * confidence["apart_p_training"]
+    return (f"{text}{who} as good in {held:.0f} % of held-out resamples and within the margin in {training:.0f} % "
+            "of cross-fitted training ones")
 
 
 def _percent(share: float) -> str:

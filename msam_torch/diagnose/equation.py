@@ -55,8 +55,9 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     nominal = nominal.to(t)
     # every hypothesis fitted at once, scored on the held-out rows
     choices, starts = encode(equation, hypotheses, t.device)
+    q = len(equation.adjustable)
     step_options = StepOptions(scaling="gauss_newton", step_size="one", theta="varpro", damping=options.damping)
-    original = fit(weak.data, choices, starts, step_options, options.steps, len(equation.adjustable))
+    original = fit(weak.data, choices, starts, step_options, options.steps, q)
     errors = heldout_errors(weak.val_data, weak.val_rows, choices, original)  # (1, C, M')
     rmse, errors = heldout_rmse(errors, original)[0], errors[0]  # (C,), (C, M')
 
@@ -64,8 +65,7 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     source, order = target_source(extended, weak.signals)
     # white noise keeps about 1 / decimation of its power through the anti-alias filter
     noise = float(train.info.get("noise_level", {}).get(source, 0.0) or 0.0) / estimation.decimation**0.5
-    boot = bootstrap(weak, choices, len(equation.adjustable), original, rmse, noise, order, options, step_options,
-                     generator)
+    boot = bootstrap(weak, choices, q, original, rmse, noise, order, options, step_options, generator)
 
     # catalogue names within each hypothesis's bootstrap interval of its total exponent
     named = name_hypotheses(spec, equation, hypotheses, original, boot, nominal)
@@ -81,7 +81,7 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     if boot is not None:
         trial_outcomes = confidence.outcomes([names] * boot.rmse.shape[0], boot.rmse, is_effect, target_rms, options)
     # the evidence a name is told apart on: held-out rows, and training rows each predicted by a fit of the others
-    q, reach = len(equation.adjustable), estimation.reach
+    reach = estimation.reach
     crossed = torch.full((len(hypotheses), int(weak.fit_rows.sum())), torch.nan, dtype=t.dtype, device=t.device)
     rivals = None
     if is_significant:

@@ -43,8 +43,9 @@ class EquationGap:
     ``description`` and ``reference``, the ``quantities`` involved and the ``assumed_quantities``
     (undeclared, :mod:`.catalogue`); ``*_equation``: the
     starting, theta-retuned and adapted equations; ``confidence``: ``margin`` (held-out RMSE of
-    the best hypothesis with another name, relative), ``runner_up``, the ``rival`` the rows neither was
-    fitted to must tell the winner from and ``apart_p`` (:func:`.confidence.told_apart`),
+    the best hypothesis with another name, relative), ``runner_up``, the ``rival`` hardest to tell
+    apart on out-of-sample rows and ``apart_p``, ``apart_p_held_out``, ``apart_p_training``
+    (:func:`.confidence.apart`),
     ``win_frequency`` over ``bootstrap_trials`` and the ``outcomes`` counted; ``improvement``: held-out weak-form RMSE of
     the retuned and adapted models and the rule applied; ``structure_left``: residual structure
     the adapted model leaves, as a share of the retuned model's; ``components``: adjustable
