@@ -30,6 +30,7 @@ from .systems import get_system, measure
 
 Table = Union[pd.DataFrame, Mapping[str, object]]
 REGULAR = 1e-2  # sampling is regular when every step is within 1 % of the median step
+LARGEST = float(np.finfo(np.float64).max) / 8  # a measured value at most this large keeps third differences finite
 
 
 @dataclass(frozen=True)
@@ -194,7 +195,8 @@ def _rows(frame: pd.DataFrame, positions: np.ndarray, limit: int = 5) -> str:
 
 
 def column(frame: pd.DataFrame, name: str, source: str, key: str) -> np.ndarray:
-    """A numeric column without NaN or inf; errors name the file, column, rows and config key."""
+    """A numeric column without NaN, inf or values whose differences (up to the third, 8 times the
+    largest magnitude) leave the float range; errors name the file, column, rows and config key."""
     if name not in frame.columns:
         names = [str(c) for c in frame.columns]
         lower = {n.lower(): n for n in names}
@@ -211,6 +213,10 @@ def column(frame: pd.DataFrame, name: str, source: str, key: str) -> np.ndarray:
         if positions.size:
             raise DataError(f"{source}: column {name!r} ({key}) has {positions.size} {what} value"
                             f"{'s' if positions.size > 1 else ''} at {_rows(frame, positions)}")
+    huge = np.flatnonzero(np.abs(values) > LARGEST)
+    if huge.size:
+        raise DataError(f"{source}: column {name!r} ({key}) has values beyond +-{LARGEST:.3g} at "
+                        f"{_rows(frame, huge)}, whose differences leave the float range; rescale the column")
     return values
 
 
@@ -290,8 +296,7 @@ def decimate_oversampled(t: np.ndarray, measured: dict, info: dict,
 def check_time(frame: pd.DataFrame, t: np.ndarray, measured: dict, source: str, config: DataConfig,
                estimated: bool, info: dict) -> tuple[np.ndarray, dict, dict]:
     """Strictly increasing time; a uniform grid where derivatives are estimated (or resampled)."""
-    with np.errstate(over="ignore"):  # a step beyond the float range is infinite: still a sign to check
-        steps = np.diff(t)
+    steps = np.diff(t)
     where = "time column " + repr(config.time) if config.time else "time"
     duplicated = np.flatnonzero(steps == 0)
     if duplicated.size:

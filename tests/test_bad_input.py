@@ -85,6 +85,8 @@ CASES = {
     "misspelt column": (edit_config(lambda c: c["data"]["columns"].update(x="X")), [], ["data.csv", "'X'", "did you mean 'x'"]),
     "NaN": (edit_frame(lambda f: set_value(f, "x", [7, 9], np.nan)), [], ["data.csv", "column 'x'", "lines 9, 11"]),
     "inf": (edit_frame(lambda f: set_value(f, "u", [30], np.inf)), [], ["data.csv", "column 'u'", "infinite", "line 32"]),
+    "value whose differences overflow": (edit_frame(lambda f: set_value(f, "x", [40], 1e308)), [],
+                                         ["data.csv", "column 'x'", "float range", "line 42"]),
     "non-monotonic time": (edit_frame(unsorted), [], ["data.csv", "not increasing", "line 13"]),
     "duplicated time": (edit_frame(duplicated), [], ["data.csv", "duplicated", "line 23"]),
     "irregular sampling": (edit_frame(irregular), [], ["data.csv", "irregular sampling", "line 52", "data.resample=true"]),
