@@ -22,11 +22,11 @@ from __future__ import annotations
 import math
 import re
 
+from ..diagnose.catalogue import TOLERANCE  # the exponent tolerance of a right functional form
+from ..diagnose.compare import DIVERGED  # the held-out free-run NRMSE beyond which a run has diverged
 from ..diagnose.verdict import Verdict, rests_on
 
-TOLERANCE = 0.2  # exponent tolerance of the catalogue (msam_torch.diagnose.catalogue.TOLERANCE)
 THETA_TOLERANCE = 0.03
-DIVERGED = 10.0  # held-out free-run NRMSE beyond which a run counts as diverged
 NO_WORSE_SLACK = 0.01
 _TERM = re.compile(r"([+-])?\s*(\d[\d.]*(?:e[+-]?\d+)?)\s+(\S+)")
 
