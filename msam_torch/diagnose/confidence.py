@@ -59,9 +59,6 @@ class Evidence:
         return Evidence(torch.cat([self.held_out, more.held_out]), torch.cat([self.crossed, more.crossed]),
                         self.blocks)
 
-    def take(self, keep: list[int]) -> "Evidence":
-        return Evidence(self.held_out[keep], self.crossed[keep], self.blocks)
-
 
 def told_apart(errors: torch.Tensor, best: int, rival: int, blocks: int, generator: torch.Generator,
                margin: float = 0.0) -> float:

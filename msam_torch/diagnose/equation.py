@@ -148,9 +148,9 @@ def _pinned_rivals(spec: ModelSpec, equation: Equation, hypotheses: list[Hypothe
             if ok and bool(torch.isfinite(held_out[k]).all())]
     if not keep:
         return None
-    crossed = crossed_errors(weak, choices[rows], fitted.gamma[0], step_options, 0, q, folds, reach)
-    evidence = confidence.Evidence(held_out, crossed, weak.independence(reach))
-    return evidence.take(keep), [pins[k].entry.name for k in keep]
+    crossed = crossed_errors(weak, choices[rows[keep]], fitted.gamma[0, keep], step_options, 0, q, folds, reach)
+    evidence = confidence.Evidence(held_out[keep], crossed, weak.independence(reach))
+    return evidence, [pins[k].entry.name for k in keep]
 
 
 def _components(equation: Equation, hypotheses: list[Hypothesis], rmse: torch.Tensor) -> list[dict]:

@@ -46,8 +46,8 @@ def equation_verdict(significant: bool, named: bool, confidence: dict, structure
     catalogue name, predicts out-of-sample rows better than every effect hypothesis with another
     name beyond chance (:func:`.confidence.apart`: ``confidence["apart_p"]`` at most
     ``options.apart_level``), wins at least ``options.min_win_frequency`` of the bootstrap trials
-    (NaN without trials: not checked) and leaves at most ``options.max_structure_left`` of the residual structure; no significant effect
-    is "no significant gap" only when the re-fitted start's residual passes ``checks``
+    (NaN without trials: not checked) and leaves at most ``options.max_structure_left`` of the
+    residual structure; no significant effect is "no significant gap" only when the re-fitted start's residual passes ``checks``
     (:func:`~.structure.residual_checks`), else inconclusive."""
     if not significant:
         return no_gap_verdict(checks)
@@ -75,11 +75,11 @@ def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
     :data:`NO_WORSE` and the resolution the free runs are checked to (:data:`~.options.AGREEMENT`)
     (where the nominal model diverged: is no closer to the record than its mean,
     :data:`NO_INFORMATION`), or the runs it rests on did not converge (its model's, and the nominal
-    model's where that decides the comparison, :func:`_needed`). An explained gap rests on the adapted model, any other verdict
-    on the theta re-fitted start: a re-fit of a structure that misses an effect compensates for it
-    on the training excitation and may simulate other data worse than the nominal theta, and a
-    nominal model that diverges is a finding; neither undoes an explanation whose adapted model
-    beats the nominal one."""
+    model's where that decides the comparison, :func:`_needed`). An explained gap rests on the
+    adapted model, any other verdict on the theta re-fitted start: a re-fit of a structure that
+    misses an effect compensates for it on the training excitation and may simulate other data
+    worse than the nominal theta, and a nominal model that diverges is a finding; neither undoes an
+    explanation whose adapted model beats the nominal one."""
     if not free_run:
         return []
     label = "held_out" if "held_out" in free_run else "train"
@@ -87,7 +87,8 @@ def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
     diverged, nrmse = entry["diverged"], entry["nrmse"]
     model = rests_on(kind)
     reasons = [f"the {_MODEL[model]} model's free run on {label} data diverged"] if model in diverged else []
-    unsettled = [m for m in entry["solver"]["unconverged"] if m == model or (m == "start" and _needed(nrmse, model))]
+    unsettled = [m for m in entry["solver"]["unconverged"]
+                 if m == model or (m == "start" and _needed(nrmse, model))]
     if unsettled:
         reasons.append(f"the free runs of the {' and '.join(_MODEL[m] for m in unsettled)} model"
                        f"{'s' if len(unsettled) > 1 else ''} did not converge when the {entry['solver']['method']} "
