@@ -1,0 +1,88 @@
+"""Do the diagnosis's exponent intervals hold the truth as often as they say?
+
+    PYTHONPATH=. python experiments/interval_coverage.py [--cases msd_coulomb ...] [--noise 0.01 0.05]
+        [--draws 20] [--seed-start 100] [--workers 2]
+
+For each withheld-effect case (``msam_torch.systems.WITHHELD``, data as the withheld-effect suite
+makes them: the position or level measured, the input exact, noise of the given share of each
+measured signal's standard deviation, nominal theta exact) and noise level, ``--draws`` records
+with independent noise draws (seeds from ``--seed-start``) are diagnosed with the default options.
+Per row: how often the reported 90 % interval of the winning hypothesis's exponent holds the
+true exponent and how often the naming interval (total exponent +- half-width) does, the spread
+(standard deviation) of the estimates over the draws beside the median half-width of the
+reported intervals, and the mean error of the estimates (their bias). The true total exponent is
+the one the simulated system holds (``TRUTH``), on the signal the effect depends on.
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+from concurrent.futures import ProcessPoolExecutor
+
+import torch
+
+from experiments.common import main_guard
+from experiments.withheld_effects import datasets
+from msam_torch.config import load_config
+from msam_torch.diagnose import diagnose
+from msam_torch.spec import ModelSpec
+from msam_torch.systems import WITHHELD
+
+# total exponent of each simulated effect on the signal it depends on (msam_torch.systems)
+TRUTH = {"msd_coulomb": 0.0, "msd_quadratic_drag": 2.0, "msd_power_damping": 1.5, "msd_hardening": 3.0,
+         "tank_torricelli": 0.5}
+
+
+def trial(args) -> dict:
+    case, noise, seed = args
+    torch.set_num_threads(1)
+    config = load_config({"model": WITHHELD[case].model, "data": {"parametric_error": 0.0, "seed": seed}})
+    train, held_out = datasets(case, noise, seed, ModelSpec.from_config(config.model))
+    gap = diagnose(config, data=train, validation=held_out).equations[0]
+    row = {"case": case, "noise": noise, "seed": seed, "total": None}
+    if gap.naming is None or gap.exponent is None:
+        return row
+    shift = gap.naming["total_exponent"] - gap.exponent  # the power of the signal in the component
+    interval = next((t["exponent_interval"] for t in gap.intervals if t["exponent"] == gap.exponent), None)
+    row.update(total=gap.naming["total_exponent"], half=gap.naming["half_width"],
+               interval=None if interval is None else [v + shift for v in interval])
+    return row
+
+
+def summary(rows: list[dict]) -> str:
+    lines = ["| case | noise | estimated | 90 % interval holds truth | naming interval holds truth | spread of estimates "
+             "| median half-width of 90 % intervals | mean error |", "|---|---|---|---|---|---|---|---|"]
+    for key in sorted({(r["case"], r["noise"]) for r in rows}):
+        group = [r for r in rows if (r["case"], r["noise"]) == key]
+        truth = TRUTH[key[0]]
+        done = [r for r in group if r["total"] is not None]
+        with_interval = [r for r in done if r["interval"] is not None]
+        holds = sum(r["interval"][0] <= truth <= r["interval"][1] for r in with_interval)
+        named = sum(abs(r["total"] - truth) <= r["half"] for r in done)
+        estimates = [r["total"] for r in done]
+        spread = statistics.stdev(estimates) if len(estimates) > 1 else float("nan")
+        half = statistics.median((r["interval"][1] - r["interval"][0]) / 2 for r in with_interval) \
+            if with_interval else float("nan")
+        bias = statistics.mean(estimates) - truth if estimates else float("nan")
+        lines.append(f"| {key[0]} | {key[1]:g} | {len(done)}/{len(group)} | {holds}/{len(with_interval)} | "
+                     f"{named}/{len(done)} | {spread:.3f} | {half:.3f} | {bias:+.3f} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", nargs="*", default=list(TRUTH), choices=list(TRUTH))
+    parser.add_argument("--noise", type=float, nargs="*", default=[0.01, 0.05])
+    parser.add_argument("--draws", type=int, default=20)
+    parser.add_argument("--seed-start", type=int, default=100)
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args()
+    jobs = [(c, n, s) for c in args.cases for n in args.noise
+            for s in range(args.seed_start, args.seed_start + args.draws)]
+    with ProcessPoolExecutor(args.workers) as pool:
+        rows = list(pool.map(trial, jobs))
+    print(summary(rows))
+
+
+if __name__ == "__main__":
+    main_guard(main)
