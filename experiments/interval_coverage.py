@@ -77,6 +77,12 @@ def main() -> None:
     parser.add_argument("--seed-start", type=int, default=100)
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
+    if args.draws < 2:
+        parser.error(f"--draws: at least 2 draws give a spread, not {args.draws}")
+    if any(n < 0 for n in args.noise):
+        parser.error(f"--noise: shares of a signal's standard deviation are at least 0, not {min(args.noise)}")
+    if args.workers < 1:
+        parser.error(f"--workers: at least 1, not {args.workers}")
     jobs = [(c, n, s) for c in args.cases for n in args.noise
             for s in range(args.seed_start, args.seed_start + args.draws)]
     with ProcessPoolExecutor(args.workers) as pool:

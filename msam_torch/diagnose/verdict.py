@@ -47,8 +47,8 @@ def equation_verdict(significant: bool, named: bool, confidence: dict, structure
     name beyond chance (:func:`.confidence.apart`: ``confidence["apart_p"]`` at most
     ``options.apart_level``), wins at least ``options.min_win_frequency`` of the bootstrap trials
     (NaN without trials: not checked) and leaves at most ``options.max_structure_left`` of the
-    residual structure; no significant effect is "no significant gap" only when the re-fitted start's residual passes ``checks``
-    (:func:`~.structure.residual_checks`), else inconclusive."""
+    residual structure; no significant effect is "no significant gap" only when the re-fitted
+    start's residual passes ``checks`` (:func:`~.structure.residual_checks`), else inconclusive."""
     if not significant:
         return no_gap_verdict(checks)
     if not named:
