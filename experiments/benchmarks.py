@@ -39,6 +39,7 @@ from msam_torch.allocator import keep_freed_memory
 from msam_torch.api import adapt
 from msam_torch.config import load_config
 from msam_torch.diagnose import DiagnoseOptions, diagnose
+from msam_torch.diagnose.document import exponent_text
 from msam_torch.simulation import EquationModel, simulate_equations as simulate
 from msam_torch.spec import ModelSpec, derivative_name, split_derivative
 
@@ -260,7 +261,7 @@ def diagnosis(path: Path, output: str, ts: float, y_std: float, unit: float) -> 
     per_state = held.get("states", {}).get(output)
     nrmse = {m: (per_state[m]["nrmse"] if per_state else held.get("nrmse", {}).get(m, float("nan")))
              for m in ("retuned", "adapted")}
-    effects = [f"{g.target}: {g.effect} (exponent {g.exponent:.3f}, wins {100 * g.confidence['win_frequency']:.0f} % "
+    effects = [f"{g.target}: {g.effect} ({exponent_text(g.exponent)}, wins {100 * g.confidence['win_frequency']:.0f} % "
                f"of {g.confidence['bootstrap_trials']})" for g in report.equations if g.significant]
     return {"verdict": report.verdict, "effects": effects, "adapted": [g.adapted_equation for g in report.equations],
             "retuned": [g.retuned_equation for g in report.equations],

@@ -2,6 +2,7 @@
 order (cubic stiffness first, or quadratic drag first, found beside a provisional power law); with
 one, exactly one; with none, none. And the adapted structure written as a starting model computes
 the adapted model's rate."""
+import re
 from functools import lru_cache
 
 import numpy as np
@@ -28,6 +29,8 @@ WITHHELD = {  # name -> (catalogue names, force the starting model lacks)
     "coulomb_and_cubic": ({"Coulomb friction", "hardening cubic stiffness"},
                           lambda x, v: 0.6 * torch.tanh(v / 0.01) + 2.0 * x**3),
     "drag_and_cubic": ({"quadratic drag", "hardening cubic stiffness"}, lambda x, v: 0.4 * v * v.abs() + 2.0 * x**3),
+    "offset_and_cubic": ({"constant offset", "hardening cubic stiffness"},
+                         lambda x, v: 2.0 * x**3 - 0.3 + 0.0 * v),
     "coulomb": ({"Coulomb friction"}, lambda x, v: 0.6 * torch.tanh(v / 0.01)),
     "none": (set(), lambda x, v: 0.0 * x),
 }
@@ -82,6 +85,23 @@ def test_two_withheld_effects_are_both_found_in_turn(case):
     assert f"**{effects[0]['exponent']:.6g}" in effects[1]["starting_equation"]
     assert all(f"**{e['exponent']:.6g}" in r.in_turn["final_model"]["x_ddot"] for e in effects)  # both in
     assert effects[1]["free_run_nrmse"]["after"] < 0.05
+
+
+def test_an_offset_and_a_cubic_stiffness_are_both_found_in_turn():
+    """A constant force the model lacks (an actuator offset) beside a cubic stiffness: both, in
+    turn; the offset's constant is the force's, within 3 %."""
+    r = report("offset_and_cubic")
+    effects = r.in_turn["effects"]
+    assert {e["effect"] for e in effects} == WITHHELD["offset_and_cubic"][0]
+    for e in effects:
+        assert e["heldout_rmse"]["after"] < 0.6 * e["heldout_rmse"]["before"]
+        assert e["free_run_nrmse"]["after"] < e["free_run_nrmse"]["before"]
+        if e["effect"] == "constant offset":
+            assert e["exponent"] is None
+        else:  # accepted first, with the offset missing: the exponent it was fitted with (as above)
+            assert e["exponent"] + 1.0 == pytest.approx(3.0, abs=0.35)
+    constants = re.findall(r"([+-]) ([0-9.e+-]+) 1(?= [+-] |$)", r.in_turn["final_model"]["x_ddot"])
+    assert len(constants) == 1 and float("".join(constants[0])) == pytest.approx(0.3, rel=0.03)
 
 
 def _gap(target, kind, effect=None, start="start", adapted="adapted"):
@@ -171,18 +191,20 @@ def test_adapted_structure_as_starting_model_computes_the_adapted_rate():
     spec = ModelSpec.from_config(load_config({"model": MODEL}).model)
     equation = spec.equations[0]
     extended = extended_equation(equation)
-    hypotheses = enumerate_hypotheses(equation)
+    hypotheses = enumerate_hypotheses(equation, offset=True)
     choices, _ = encode(equation, hypotheses)
     pick = next(c for c, h in enumerate(hypotheses) if h.kind == "additive" and h.component == 0 and h.function == 0)
     multiplicative = next(c for c, h in enumerate(hypotheses) if h.kind == "multiplicative" and h.component == 1)
-    rows = [0, 0, pick]  # start, retuned, adapted (the adapted model is row 2)
-    for adapted, gamma in ((pick, -0.97), (multiplicative, 0.5)):
-        rows[2] = adapted
-        choice = choices[rows]
+    offset = next(c for c, h in enumerate(hypotheses) if h.kind == "offset")
+    # slots: the two adjustable components, their copies, the constant
+    cases = {pick: ([0.0, 0.0, -0.97, 0.0, 0.0], 2, 4), multiplicative: ([0.0, 0.5, 0.0, 0.0, 0.0], 2, 3),
+             offset: ([0.0] * 5, 4, 4)}
+    for adapted, (gamma, added, count) in cases.items():
+        choice = choices[[0, 0, adapted]]  # start, retuned, adapted (the adapted model is row 2)
         g = torch.zeros(3, choice.shape[1], dtype=torch.float64)
-        g[2] = torch.tensor([0.0, 0.0, gamma, 0.0]) if adapted == pick else torch.tensor([0.0, gamma, 0.0, 0.0])
-        theta = torch.tensor([[-0.5, -4.0, 0.0, 0.0]] * 3, dtype=torch.float64)
-        theta[2, 2] = -0.6
+        g[2] = torch.tensor(gamma)
+        theta = torch.tensor([[-0.5, -4.0, 0.0, 0.0, 0.0]] * 3, dtype=torch.float64)
+        theta[2, added] = -0.6
         scale = torch.tensor([1.7, 0.8, 1.0, 1.0], dtype=torch.float64)  # |f/s|^gamma: s folded into theta
         model = EquationModel(extended, choice, g, theta, torch.ones(3, 1, dtype=torch.float64), scale)
         components = adapted_components(equation, model)
@@ -193,7 +215,7 @@ def test_adapted_structure_as_starting_model_computes_the_adapted_rate():
         rate = sum(float(c.theta({})) * c.term(values) for c in written.components)
         expected = model.rate({k: v.unsqueeze(0) for k, v in values.items()})[2]
         assert torch.allclose(rate, expected, rtol=1e-6, atol=1e-6)
-        assert len(written.components) == (4 if adapted == pick else 3)
+        assert len(written.components) == count
 
 
 def test_max_effects_is_checked():

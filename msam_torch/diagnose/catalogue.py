@@ -22,6 +22,7 @@ from pydantic import BaseModel, ConfigDict
 from ..config import EffectConfig, validate
 from ..expressions import Expression
 from ..spec import Equation, ModelSpec, derivative_name, split_derivative
+from .hypotheses import holds_constant
 
 NOT_CATALOGUED = "power law, no catalogued effect"
 TOLERANCE = 0.2  # the catalogue's resolution: the least half-width of an exponent interval
@@ -68,7 +69,7 @@ class Roles:
         ``T`` of ``-h (T - Ta)``), each with the signals it exchanges with (its references);
         ``nominal``: the starting thetas. None in an equation that holds a constant component:
         it carries the exchange's constant already."""
-        if any(not c.term.names for c in equation.components):
+        if holds_constant(equation):
             return {}
         plain = {i: c.term.text for i, c in enumerate(equation.components) if c.term.text in self.quantities}
         partners = {i: tuple(s for j, s in plain.items() if j != i and self.of(s) == self.of(plain[i])

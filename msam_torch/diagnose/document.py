@@ -39,9 +39,15 @@ def _in_turn(in_turn: dict) -> list[str]:
           "free-run NRMSE before -> after |", "|---|---|---|---|---|---|"]
     for e in in_turn["effects"]:
         free = " -> ".join("-" if v is None else f"{v:.4g}" for v in (e["free_run_nrmse"]["before"], e["free_run_nrmse"]["after"]))
-        md.append(f"| {e['step']} | {e['target']} | {e['effect']} | {e['exponent']:.3f} | "
+        exponent = exponent_text(e["exponent"]).removeprefix("exponent ")
+        md.append(f"| {e['step']} | {e['target']} | {e['effect']} | {exponent} | "
                   f"{e['heldout_rmse']['before']:.4g} -> {e['heldout_rmse']['after']:.4g} | {free} |")
     return md + ["", f"Stopped: {in_turn['stopped']}.", ""]
+
+
+def exponent_text(value: float | None) -> str:
+    """``exponent 1.993``, or ``no exponent`` (an offset)."""
+    return "no exponent" if value is None else f"exponent {value:.3f}"
 
 
 def interval_text(low: float, high: float, value: float, scale: float = 1.0, unit: str = "") -> str:
@@ -61,7 +67,7 @@ def _equation(g, series: dict) -> list[str]:
           f"- theta re-fitted: `{g.retuned_equation}`", f"- adapted model: `{g.adapted_equation}`"]
     if g.significant:
         c = g.confidence
-        md += [f"- which: {g.effect} ({g.hypothesis}, exponent {g.exponent:.3f})"]
+        md += [f"- which: {g.effect} ({g.hypothesis}, {exponent_text(g.exponent)})"]
         md += _named(g.naming) if g.naming else []
         if c["bootstrap_trials"]:
             md += [f"- confidence: wins {100 * c['win_frequency']:.0f} % of {c['bootstrap_trials']} bootstrap trials "

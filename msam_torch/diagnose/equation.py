@@ -19,7 +19,7 @@ from .bootstrap import bootstrap
 from .compare import models
 from ..estimation import Estimation
 from .hypotheses import (Fitted, Hypothesis, encode, enumerate_hypotheses, exponent, extended_equation, fit,
-                         fitted_text, heldout_errors, heldout_rmse, crossed_errors, references, slot)
+                         fitted_text, heldout_errors, heldout_rmse, crossed_errors, offset_testable, references, slot)
 from .intervals import term_intervals
 from .localise import starting_where
 from .naming import Naming, name_hypotheses, pinned, pinned_signs
@@ -47,7 +47,8 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     half-width of ``estimation``; ``generator`` draws the bootstrap trials."""
     # every hypothesis (exchange laws where a signal exchanges with one of its own quantity)
     nominal = spec.theta(equation, parameters)
-    hypotheses = enumerate_hypotheses(equation, catalogue.Roles.of_equation(spec, equation).exchanging(equation, nominal))
+    exchanging = catalogue.Roles.of_equation(spec, equation).exchanging(equation, nominal)
+    hypotheses = enumerate_hypotheses(equation, exchanging, offset=offset_testable(equation, estimation.train))
     # weak-form rows of the equation extended by a copy of every adjustable component
     extended = extended_equation(equation, references(hypotheses))
     weak = WeakForm.build(extended, estimation.train, estimation.held_out, estimation.half_width, options.blocks)

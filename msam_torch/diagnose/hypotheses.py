@@ -1,8 +1,8 @@
 """Candidate explanations of a gap in one state equation, fitted together as a batch.
 
 Every hypothesis is a candidate (Eq. 8-9) of one *extended* equation: the starting components,
-a copy of every adjustable component, and the adjustment set F plus two constant functions, ``1``
-(component left as it is) and ``0`` (copy switched off). So one batch holds
+a copy of every adjustable component, a constant component, and the adjustment set F plus two
+constant functions, ``1`` (component left as it is) and ``0`` (copy switched off). So one batch holds
 
 - ``retuned``: the starting model with every theta re-fitted (the null hypothesis);
 - ``multiplicative``: one component adjusted, ``M_i -> M_i |f|^gamma`` (the paper's Eq. 8);
@@ -17,7 +17,11 @@ a copy of every adjustable component, and the adjustment set F plus two constant
   units of ``s`` and ``r`` may differ: each term has its own theta). Without the constant the
   copy's exponent bends to mimic it; without the square, to mimic the curvature of the
   reference's law where the reference varies (an ambient temperature drifting by a few kelvin
-  moves ``Ta^4`` by as much as the curvature of ``T^4`` that tells the exponent).
+  moves ``Ta^4`` by as much as the curvature of ``T^4`` that tells the exponent);
+- ``offset``: the starting model plus a fitted constant (a sensor or actuator offset, a constant
+  load), in an equation that holds no constant component and whose signals all take both signs
+  (:func:`offset_testable`): measured records often carry an offset, and a power law fitted without
+  it bends to mimic it (docs/diagnose.md).
 
 The fit is variable projection (theta re-solved every step) with damped Gauss-Newton steps on
 gamma, taken by :func:`msam_torch.step.step` on all trials and hypotheses at once.
@@ -39,13 +43,15 @@ ADDITIVE_STARTS = (-0.5, 0.5, 1.5)
 COLLINEAR = 0.15  # |gamma| of an additive copy below which it is a log pair of its original (rejected)
 SANE_EXPONENT = 5.0  # |gamma| beyond which a fit ran away (catalogued laws need at most 3)
 COPIES = ("additive", "exchange")  # kinds whose exponent sits in a copy's slot
+EXPONENTLESS = ("retuned", "offset")  # kinds without an exponent of their own
+MINORITY_SIGN = 0.1  # share of the samples a signal must hold on either side of 0 for an offset to be tested
 
 
 @dataclass(frozen=True)
 class Hypothesis:
     """One candidate explanation: ``kind``, the component (index in the equation), the function."""
 
-    kind: str  # 'retuned', 'multiplicative', 'additive' or 'exchange'
+    kind: str  # 'retuned', 'multiplicative', 'additive', 'exchange' or 'offset'
     component: int | None = None
     function: int | None = None
     start: float = 0.0
@@ -54,6 +60,8 @@ class Hypothesis:
     def label(self, equation: Equation) -> str:
         if self.kind == "retuned":
             return "starting model, theta re-fitted"
+        if self.kind == "offset":
+            return "starting model + constant"
         term = format_component(equation, self.component, None, None)
         f = equation.adjustments[self.function].text
         if self.kind == "multiplicative":
@@ -70,20 +78,41 @@ def references(hypotheses: list[Hypothesis]) -> tuple[str, ...] | None:
 
 
 def extended_equation(equation: Equation, references: tuple[str, ...] | None = None) -> Equation:
-    """Starting components + a copy of every adjustable one (+, for exchange hypotheses with
-    ``references`` (:func:`references`), the constant ``1`` and the square of each reference);
-    F + the constants 1 and 0."""
+    """Starting components + a copy of every adjustable one + the constant ``1`` (+, for exchange
+    hypotheses with ``references`` (:func:`references`), the square of each reference); F + the
+    constants 1 and 0."""
     copies = tuple(replace(equation.components[i], adjustable=True) for i in equation.adjustable)
     constants = (parse("1", "diagnose", set()), parse("0", "diagnose", set()))
-    offset = () if references is None else (Component(term=constants[0], theta=constants[1]),) + tuple(
-        Component(term=parse(f"{r}^2", "diagnose", {r}), theta=constants[1]) for r in references)
+    offset = (Component(term=constants[0], theta=constants[1]),) + tuple(
+        Component(term=parse(f"{r}^2", "diagnose", {r}), theta=constants[1]) for r in references or ())
     return Equation(equation.target, equation.components + copies + offset, equation.adjustments + constants)
 
 
+def offset_testable(equation: Equation, signals: dict) -> bool:
+    """Whether an offset can be told apart in ``equation`` on the record ``signals``: the equation
+    holds no constant (:func:`holds_constant`) and each signal it reads (the target aside) takes
+    either sign in at least :data:`MINORITY_SIGN` of the samples. Where a signal keeps one sign,
+    a constant is a law of it (``s|s|^-1``), and what is odd in two-signed data (a dead zone or
+    saturation of a one-signed input, Coulomb friction in one direction) reads as an offset."""
+    if holds_constant(equation):
+        return False
+    for name in equation.signals - {equation.target, "t"}:
+        values = signals[name]
+        if float(torch.minimum((values > 0).double().mean(), (values < 0).double().mean())) < MINORITY_SIGN:
+            return False
+    return True
+
+
+def holds_constant(equation: Equation) -> bool:
+    """Whether a component of ``equation`` is a constant (it carries an offset already)."""
+    return any(not c.term.names for c in equation.components)
+
+
 def enumerate_hypotheses(equation: Equation, exchanging: dict[int, tuple[str, ...]] | None = None,
-                         starts=ADDITIVE_STARTS) -> list[Hypothesis]:
+                         starts=ADDITIVE_STARTS, offset: bool = False) -> list[Hypothesis]:
     """Every hypothesis of ``equation``; ``exchanging``: the components with exchange references
-    (:meth:`.catalogue.Roles.exchanging`), each also tried as an exchange law of its own signal."""
+    (:meth:`.catalogue.Roles.exchanging`), each also tried as an exchange law of its own signal;
+    ``offset``: the offset too (:func:`offset_testable`)."""
     found = [Hypothesis("retuned")]
     for i in equation.adjustable:
         for f in range(len(equation.adjustments)):
@@ -95,17 +124,17 @@ def enumerate_hypotheses(equation: Equation, exchanging: dict[int, tuple[str, ..
         for f, a in enumerate(equation.adjustments):
             if a.is_magnitude and a.inner_text == equation.components[i].term.text:
                 found.extend(Hypothesis("exchange", i, f, s, partners) for s in starts)
-    return found
+    return found + ([Hypothesis("offset")] if offset else [])
 
 
 def encode(equation: Equation, hypotheses: list[Hypothesis], device=None):
-    """Choices (C, 2Q [+ 1 + R]) into the extended adjustment set, and starting exponents: the slots
-    of the components, of their copies and, with exchange hypotheses, of the constant and the R
+    """Choices (C, 2Q + 1 [+ R]) into the extended adjustment set, and starting exponents: the slots
+    of the components, of their copies, of the constant and, with exchange hypotheses, of the R
     references' squares (:func:`extended_equation`)."""
     q, n_f = len(equation.adjustable), len(equation.adjustments)
     one, zero = n_f, n_f + 1
     shared = references(hypotheses)
-    width = 2 * q + (0 if shared is None else 1 + len(shared))
+    width = 2 * q + 1 + (0 if shared is None else len(shared))
     choices = torch.full((len(hypotheses), width), zero, dtype=torch.long)
     choices[:, :q] = one
     starts = torch.zeros(len(hypotheses), width, dtype=torch.float64)
@@ -116,8 +145,9 @@ def encode(equation: Equation, hypotheses: list[Hypothesis], device=None):
         elif h.kind in COPIES:
             choices[c, q + slot[h.component]] = h.function
             starts[c, q + slot[h.component]] = h.start
-        if h.kind == "exchange":
+        if h.kind in ("exchange", "offset"):
             choices[c, 2 * q] = one
+        if h.kind == "exchange":
             for r in h.references:
                 choices[c, 2 * q + 1 + shared.index(r)] = one
     return choices.to(device), starts.to(device)
@@ -201,8 +231,8 @@ def slot(equation: Equation, h: Hypothesis) -> int:
 
 
 def exponent(h: Hypothesis, equation: Equation, gamma: torch.Tensor) -> float | None:
-    """The fitted exponent of an effect hypothesis (None for the re-fitted start)."""
-    return None if h.kind == "retuned" else float(gamma[slot(equation, h)])
+    """The fitted exponent of an effect hypothesis (None for the re-fitted start and the offset)."""
+    return None if h.kind in EXPONENTLESS else float(gamma[slot(equation, h)])
 
 
 def data_theta(fitted: Fitted, c: int, choices: torch.Tensor, scale: torch.Tensor, trial: int = 0) -> torch.Tensor:

@@ -5,13 +5,15 @@ Each effect hypothesis's *total exponent* on its signal (``gamma`` plus the powe
 its component: ``c v|v|^-0.3`` is 0.7 on ``v``) gets an interval from the bootstrap trials
 (:mod:`.bootstrap`): the original fit +- two robust standard deviations (1.4826 median absolute
 deviations, so that a trial falling into another optimum does not widen it) of the trials' exponents
-(a trial that never left its warm start at the original fit has none of its own), and never
-narrower than the catalogue's resolution +-0.2 (the trials see noise and time blocks, not the bias
-of the weak-form estimate or of a smoothed law). An entry names it only when that interval holds the
-catalogue's exponent and no other entry's (:func:`.catalogue.match`); nothing is moved into an interval. A hypothesis
-whose exponent leaves the sane range (:data:`.hypotheses.SANE_EXPONENT`) or never left its start
-(no step was accepted: the exponent is not estimated), or whose interval is wider than
-:data:`STABLE_HALF_WIDTH` or rests on fewer than half the trials, is not an effect.
+(a trial that never left its warm start at the original fit has none of its own), and never narrower
+than the catalogue's resolution +-0.2 (the trials see noise and time blocks, not the bias of the
+weak-form estimate or of a smoothed law). An entry names it only when that interval holds the
+catalogue's exponent and no other entry's (:func:`.catalogue.match`); nothing is moved into an
+interval. A hypothesis whose exponent leaves the sane range (:data:`.hypotheses.SANE_EXPONENT`) or
+never left its start (no step was accepted: the exponent is not estimated), or whose interval is
+wider than :data:`STABLE_HALF_WIDTH` or rests on fewer than half the trials, is not an effect. The
+offset hypothesis (a constant the equation lacks) has no exponent: it is named :data:`OFFSET`
+whenever its fit is valid.
 """
 from __future__ import annotations
 
@@ -22,12 +24,16 @@ import torch
 from ..spec import Equation, ModelSpec
 from . import catalogue
 from .bootstrap import Bootstrap
-from .hypotheses import Fitted, Hypothesis, sane, slot
+from .hypotheses import EXPONENTLESS, Fitted, Hypothesis, sane, slot
 from .verdict import Verdict
 
 STABLE_HALF_WIDTH = 1.0  # an exponent known no better than +-1 is not an effect
 SPREAD = 2.0  # interval half-width in standard deviations of the trials' exponents
 MAD_TO_STD = 1.4826  # median absolute deviation -> standard deviation of a normal distribution
+OFFSET = "constant offset"
+OFFSET_DESCRIPTION = ("a constant the equation lacks: an offset of a sensor or an actuator, or a constant load "
+                      "(gravity, a preload, a bias current)")
+OFFSET_REFERENCE = "Ljung, System Identification: Theory for the User, 2nd ed., Prentice Hall (1999), sec. 14.1"
 
 
 @dataclass(frozen=True)
@@ -74,6 +80,9 @@ def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypoth
         if h.kind == "retuned":
             names.append(Verdict.NO_GAP.text()), admissible.append(True), details.append(None)
             continue
+        if h.kind == "offset":
+            names.append(OFFSET), admissible.append(True), details.append(_offset_details(roles))
+            continue
         s = slot(equation, h)
         reading = catalogue.read(roles, equation, h.component, h.function)
         gamma = float(original.gamma[0, c, s])
@@ -117,6 +126,14 @@ def _details(entry, reading: catalogue.Reading, roles: catalogue.Roles, total: f
             "assumed_quantities": dict(roles.assumed)}
 
 
+def _offset_details(roles: catalogue.Roles) -> dict:
+    """What the report says of the offset hypothesis (the keys of :func:`_details`)."""
+    return {"effect": OFFSET, "text": f"{OFFSET}: {OFFSET_DESCRIPTION}", "total_exponent": None, "half_width": None,
+            "on": None, "catalogue_exponent": None, "domain": "any", "description": OFFSET_DESCRIPTION,
+            "reference": OFFSET_REFERENCE, "quantities": {"acts_on": None, "term": None, "depends_on": None},
+            "assumed_quantities": dict(roles.assumed)}
+
+
 @dataclass(frozen=True)
 class Pinned:
     """An effect hypothesis held at a catalogue entry's exponent (theta re-fitted): a rival the
@@ -133,7 +150,7 @@ def pinned(spec: ModelSpec, equation: Equation, hypotheses: list[Hypothesis]) ->
     single-valued catalogue entry its quantities admit, other than the component's own law."""
     roles, entries, seen, out = catalogue.Roles.of_equation(spec, equation), catalogue.entries(spec), set(), []
     for c, h in enumerate(hypotheses):
-        if h.kind == "retuned" or (h.kind, h.component, h.function) in seen:
+        if h.kind in EXPONENTLESS or (h.kind, h.component, h.function) in seen:
             continue
         seen.add((h.kind, h.component, h.function))
         reading = catalogue.read(roles, equation, h.component, h.function)

@@ -19,12 +19,13 @@ from ..model import StateModel
 from ..outputs import check_folder, one_set, write_atomic
 from ..result import _finite
 from ..tracking import TensorBoardTracker
-from .document import margin, markdown
+from .document import exponent_text, margin, markdown
 from .figures import Units, render
 from .html import page
 from .verdict import Verdict
 
 SCHEMA_VERSION = 1
+
 
 
 @dataclass(frozen=True)
@@ -115,7 +116,7 @@ class GapReport:
                 named = "" if g.naming is None else f"; {g.naming['text']}"
                 boot = (f"; bootstrap wins {100 * c['win_frequency']:.0f} % of {c['bootstrap_trials']}, {margin(c)}"
                         if c["bootstrap_trials"] else "")
-                lines.append(f"  best: {g.hypothesis} ({g.effect}), exponent {g.exponent:.3f}{named}; "
+                lines.append(f"  best: {g.hypothesis} ({g.effect}), {exponent_text(g.exponent)}{named}; "
                              f"held-out RMSE -{100 * g.improvement['relative']:.1f} % vs theta re-fitted{boot}")
             lines.append(f"  starting: {g.start_equation}")
             lines.append(f"  theta re-fitted: {g.retuned_equation}")
@@ -140,8 +141,8 @@ class GapReport:
                          f"adapted {n['adapted']}; closed by retuning {closed['retuning']}, "
                          f"by the effect {closed['effect']}")
         for e in self.in_turn.get("effects", []):
-            lines.append(f"effect {e['step']} in {e['target']}: {e['effect']} (exponent {e['exponent']:.3f}); held-out "
-                         f"RMSE {e['heldout_rmse']['before']:.4g} -> {e['heldout_rmse']['after']:.4g}")
+            lines.append(f"effect {e['step']} in {e['target']}: {e['effect']} ({exponent_text(e['exponent'])}); "
+                         f"held-out RMSE {e['heldout_rmse']['before']:.4g} -> {e['heldout_rmse']['after']:.4g}")
         if self.in_turn:
             lines.append(f"effects in turn stopped: {self.in_turn['stopped']}")
         lines.append(f"({self.seconds:.2f} s)")
