@@ -16,7 +16,7 @@ from msam_torch.cli import main
 from msam_torch.derivatives import BAND
 from msam_torch.diagnose import DiagnoseOptions, EquationGap, Verdict, diagnose
 from msam_torch.weak import HALF_AMPLITUDE
-from msam_torch.diagnose.confidence import told_apart
+from msam_torch.diagnose.confidence import resamples, told_apart
 from msam_torch.diagnose.verdict import demoted, equation_verdict, free_run_reasons, overall
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
@@ -135,9 +135,9 @@ def test_a_name_needs_to_predict_the_held_out_rows_better_than_another_name():
     scatter are not (p > 0.05), and the verdict is then "not explained", naming the runner-up."""
     rng, generator = np.random.default_rng(0), torch.Generator().manual_seed(0)
     base = torch.tensor(rng.standard_normal(400))
-    assert told_apart(torch.stack([0.9 * base, base]), 0, 1, 10, generator) == 0.5**10  # wins every block
+    assert told_apart(torch.stack([0.9 * base, base]), 0, 1, resamples(10, generator)) == 0.5**10  # wins every block
     noisy = base + 0.05 * torch.tensor(rng.standard_normal((2, 400)))  # neither better than the other
-    p = told_apart(noisy, 0, 1, 10, generator)
+    p = told_apart(noisy, 0, 1, resamples(10, generator))
     assert 0.05 < p < 0.95
     sure = {"win_frequency": 1.0, "apart_p": p, "rival": "power-law damping"}
     kind, reasons = equation_verdict(True, True, sure, 0.0, {"failed": []}, DiagnoseOptions())
@@ -156,9 +156,9 @@ def test_held_out_rows_are_resampled_in_blocks_as_long_as_their_errors_are_depen
     best, rival = base + 0.05 * torch.tensor(rng.standard_normal((2, 400)))  # tied ...
     rival[:40] *= 3.0  # ... but for the first tenth
     errors = torch.stack([best, rival])
-    assert told_apart(errors, 0, 1, 10, generator) > 0.1
-    assert told_apart(errors, 0, 1, 40, generator) < 0.03
-    assert told_apart(torch.stack([0.5 * base, base]), 0, 1, 3, generator) == 0.125
+    assert told_apart(errors, 0, 1, resamples(10, generator)) > 0.1
+    assert told_apart(errors, 0, 1, resamples(40, generator)) < 0.03
+    assert told_apart(torch.stack([0.5 * base, base]), 0, 1, resamples(3, generator)) == 0.125
 
 
 def test_training_rows_tell_a_name_apart_only_by_a_relevant_margin():

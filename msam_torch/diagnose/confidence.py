@@ -60,18 +60,22 @@ class Evidence:
                         self.blocks)
 
 
-def told_apart(errors: torch.Tensor, best: int, rival: int, blocks: int, generator: torch.Generator,
-               margin: float = 0.0) -> float:
+def resamples(blocks: int, generator: torch.Generator) -> torch.Tensor:
+    """:data:`RESAMPLES` draws of ``blocks`` block indices, each drawn with replacement (R, blocks)."""
+    return torch.randint(0, blocks, (RESAMPLES, blocks), generator=generator)
+
+
+def told_apart(errors: torch.Tensor, best: int, rival: int, draws: torch.Tensor, margin: float = 0.0) -> float:
     """The share of block-bootstrap resamples of out-of-sample rows on which hypothesis ``rival``
     predicts within ``margin`` of ``best`` (its root sum of squared ``errors`` (C, M) at most
     ``1 / (1 - margin)`` times the best's; a non-finite error counts for the rival): a one-sided
-    p-value that ``best`` is not better by the margin. :data:`RESAMPLES` draws of ``blocks``
-    contiguous blocks of rows, each drawn with replacement; ``blocks`` is the number of independent
-    rows (rows within a test function's reach share their errors, :meth:`.weak.WeakForm.apart`),
-    and the p-value is at least 2^-blocks, the chance that ``best`` wins every block when neither
-    is better."""
+    p-value that ``best`` is not better by the margin. ``draws`` (:func:`resamples`) pick contiguous
+    blocks of rows; their number is the number of independent rows (rows within a test function's
+    reach share their errors, :meth:`.weak.WeakForm.apart`), and the p-value is at least
+    2^-blocks, the chance that ``best`` wins every block when neither is better."""
+    blocks = draws.shape[-1]
     square = lambda c: torch.stack([part.square().sum() for part in torch.tensor_split(errors[c], blocks)])
-    draws = torch.randint(0, blocks, (RESAMPLES, blocks), generator=generator).to(errors.device)
+    draws = draws.to(errors.device)
     within = ~(square(best)[draws].sum(-1) < (1 - margin) ** 2 * square(rival)[draws].sum(-1))
     return max(float(within.double().mean()), 0.5**blocks)
 
@@ -82,11 +86,13 @@ def apart(evidence: Evidence, best: int, others: list[int], relative: float,
     apart by the held-out rows (:func:`told_apart`) or by the crossed training rows at the null
     rule's margin ``relative`` (rows of the training excitation share the estimator's bias with
     every fit on them, so a preference there must also be relevant in size); its p-value is the
-    lesser of the two, and the rival's is the greatest (0 without others)."""
+    lesser of the two, and the rival's is the greatest (0 without others). Every hypothesis is
+    compared on the same resamples, so that a p-value does not depend on the others tested."""
     found, rival = {"apart_p": 0.0, "apart_p_held_out": 0.0, "apart_p_training": 0.0}, None
+    draws = [resamples(blocks, generator) for blocks in evidence.blocks]
     for c in others:
-        held = told_apart(evidence.held_out, best, c, evidence.blocks[0], generator)
-        crossed = told_apart(evidence.crossed, best, c, evidence.blocks[1], generator, relative)
+        held = told_apart(evidence.held_out, best, c, draws[0])
+        crossed = told_apart(evidence.crossed, best, c, draws[1], relative)
         if rival is None or min(held, crossed) > found["apart_p"]:
             rival = c
             found = {"apart_p": min(held, crossed), "apart_p_held_out": held, "apart_p_training": crossed}
