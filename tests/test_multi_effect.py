@@ -14,7 +14,7 @@ from msam_torch.config import DataConfig, load_config
 from msam_torch.data import build_dataset
 from msam_torch.diagnose import DiagnoseOptions, EquationGap, GapReport, Verdict, diagnose
 from msam_torch.diagnose.adapted import adapted_components
-from msam_torch.diagnose.hypotheses import encode, enumerate_hypotheses, extended_equation
+from msam_torch.diagnose.hypotheses import encode, enumerate_hypotheses, extended_equation, offset_testable
 from msam_torch.diagnose.multi import in_turn
 from msam_torch.errors import ConfigError
 from msam_torch.simulation import EquationModel
@@ -185,6 +185,22 @@ def test_report_files_list_the_effects(tmp_path):
     text = (tmp_path / "report.md").read_text()
     assert "## Effects in turn" in text and "Stopped: no significant gap remains." in text
     assert "effects in turn stopped: no significant gap remains" in str(r)
+
+
+def test_an_offset_is_tried_only_where_every_signal_takes_both_signs():
+    """A constant is a law of a one-signed signal (``s|s|^-1``), so the offset is not tried there,
+    nor in an equation that holds a constant already."""
+    equation = ModelSpec.from_config(load_config({"model": MODEL}).model).equations[0]
+    t = torch.linspace(0, 20, 2001, dtype=torch.float64)
+    signals = {"x": torch.sin(t), "x_dot": torch.cos(t), "u": torch.sin(0.7 * t)}
+    assert offset_testable(equation, signals)
+    assert [h.kind for h in enumerate_hypotheses(equation, offset=True)].count("offset") == 1
+    assert not offset_testable(equation, {**signals, "u": 1.2 + torch.sin(0.7 * t)})  # a positive input
+    assert not offset_testable(equation, {**signals, "x": torch.sin(t) + 0.97})  # 7 % of the samples below 0
+    assert offset_testable(equation, {**signals, "x": torch.sin(t) + 0.9})  # 13 % below 0
+    constant = load_config({"model": {**MODEL, "equations": [{**MODEL["equations"][0], "components": [
+        *MODEL["equations"][0]["components"], {"term": "1", "theta": 0.1}]}]}})
+    assert not offset_testable(ModelSpec.from_config(constant.model).equations[0], signals)
 
 
 def test_adapted_structure_as_starting_model_computes_the_adapted_rate():

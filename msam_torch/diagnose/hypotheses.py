@@ -83,9 +83,9 @@ def extended_equation(equation: Equation, references: tuple[str, ...] | None = N
     constants 1 and 0."""
     copies = tuple(replace(equation.components[i], adjustable=True) for i in equation.adjustable)
     constants = (parse("1", "diagnose", set()), parse("0", "diagnose", set()))
-    offset = (Component(term=constants[0], theta=constants[1]),) + tuple(
+    constant_terms = (Component(term=constants[0], theta=constants[1]),) + tuple(
         Component(term=parse(f"{r}^2", "diagnose", {r}), theta=constants[1]) for r in references or ())
-    return Equation(equation.target, equation.components + copies + offset, equation.adjustments + constants)
+    return Equation(equation.target, equation.components + copies + constant_terms, equation.adjustments + constants)
 
 
 def offset_testable(equation: Equation, signals: dict) -> bool:

@@ -128,8 +128,8 @@ def _details(entry, reading: catalogue.Reading, roles: catalogue.Roles, total: f
 
 def _offset_details(roles: catalogue.Roles) -> dict:
     """What the report says of the offset hypothesis (the keys of :func:`_details`)."""
-    return {"effect": OFFSET, "text": f"{OFFSET}: {OFFSET_DESCRIPTION}", "total_exponent": None, "half_width": None,
-            "on": None, "catalogue_exponent": None, "domain": "any", "description": OFFSET_DESCRIPTION,
+    return {"effect": OFFSET, "text": f"{OFFSET} (any domain): a fitted constant", "total_exponent": None,
+            "half_width": None, "on": None, "catalogue_exponent": None, "domain": "any", "description": OFFSET_DESCRIPTION,
             "reference": OFFSET_REFERENCE, "quantities": {"acts_on": None, "term": None, "depends_on": None},
             "assumed_quantities": dict(roles.assumed)}
 

@@ -27,7 +27,6 @@ from .verdict import Verdict
 SCHEMA_VERSION = 1
 
 
-
 @dataclass(frozen=True)
 class EquationGap:
     """The diagnosis of one state equation.
