@@ -14,7 +14,7 @@ from msam_torch.diagnose import catalogue
 from msam_torch.diagnose.bootstrap import Bootstrap
 from msam_torch.diagnose.catalogue import bundled
 from msam_torch.diagnose.hypotheses import Fitted
-from msam_torch.diagnose.naming import half_width
+from msam_torch.diagnose.naming import Naming, half_width, repeated
 from msam_torch.errors import ConfigError
 from msam_torch.spec import ModelSpec
 
@@ -209,6 +209,27 @@ def test_a_trial_that_never_left_its_warm_start_has_no_exponent_of_its_own():
     assert half_width(boot(counted), 0, 0, 1.0) == pytest.approx(spread) and spread > 0.25
     assert float(1.4826 * 2 * (counted - counted.median()).abs().median()) < 0.8 * spread
     assert half_width(boot(torch.cat([moved[:1], stuck])), 0, 0, 1.0) == 0.2
+
+
+def test_a_start_that_ended_within_the_best_starts_interval_is_the_same_estimate():
+    """Three starts of one additive form ended at total exponents 2.88 (the best held-out RMSE,
+    interval +-0.54), 2.79 and 2.61: the last two are that estimate again, though the narrow
+    interval of 2.61 holds no entry; a start that ended at 1.9 (outside) stays a rival, as do
+    another form, a start that is not admissible and the exponent-less hypotheses."""
+    from msam_torch.diagnose.hypotheses import Hypothesis
+
+    hypotheses = [Hypothesis("retuned"), Hypothesis("additive", 0, 0, -0.5), Hypothesis("additive", 0, 0, 0.5),
+                  Hypothesis("additive", 0, 0, 1.5), Hypothesis("additive", 0, 0, 1.5), Hypothesis("multiplicative", 0, 0),
+                  Hypothesis("additive", 0, 0, 1.5), Hypothesis("offset")]
+    totals = [None, 2.88, 2.79, 2.61, 1.9, 2.85, 2.7, None]
+    halves = [None, 0.54, 0.3, 0.2, 0.2, 0.5, 0.2, None]
+    details = [None if t is None else {"total_exponent": t, "half_width": h} for t, h in zip(totals, halves)]
+    admissible = torch.tensor([True, True, True, True, True, True, False, True])
+    rmse = torch.tensor([1.0, 0.322, 0.3221, 0.3235, 0.33, 0.31, 0.2, 0.9], dtype=torch.float64)
+    named = Naming(["no significant gap"] + ["x"] * 7, admissible, details)
+    assert repeated(hypotheses, named, rmse).tolist() == [False, False, True, True, False, False, False, False]
+    rmse[3] = 0.3  # the start at 2.61 fits best: its interval (+-0.2) holds 2.79 but not 2.88
+    assert repeated(hypotheses, named, rmse).tolist() == [False, False, True, False, False, False, False, False]
 
 
 def test_pinned_rivals_are_the_single_valued_entries_a_hypothesis_admits():

@@ -22,7 +22,7 @@ from .hypotheses import (Fitted, Hypothesis, encode, enumerate_hypotheses, expon
                          fitted_text, heldout_errors, heldout_rmse, crossed_errors, offset_testable, references, slot)
 from .intervals import term_intervals
 from .localise import starting_where
-from .naming import Naming, name_hypotheses, pinned, pinned_signs
+from .naming import Naming, name_hypotheses, pinned, pinned_signs, repeated
 from .options import DiagnoseOptions
 from .report import EquationGap
 from .structure import residual_checks, structure_left
@@ -73,7 +73,9 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     names = named.names
 
     # null rule on the best effect; how often it wins the bootstrap trials
-    is_effect = torch.tensor([h.kind != "retuned" for h in hypotheses], device=t.device) & named.admissible
+    # (a start of a form that ended within the interval of its best start is that estimate again)
+    is_effect = torch.tensor([h.kind != "retuned" for h in hypotheses], device=t.device) & named.admissible \
+        & ~repeated(hypotheses, named, rmse)
     best = int(confidence.best_effect(rmse, is_effect))
     target_rms = weak.target_rms
     is_significant = bool(confidence.significant(rmse[best], rmse[0], target_rms, options.relative, options.absolute))

@@ -11,7 +11,8 @@ weak-form estimate or of a smoothed law). An entry names it only when that inter
 catalogue's exponent and no other entry's (:func:`.catalogue.match`); nothing is moved into an
 interval. A hypothesis whose exponent leaves the sane range (:data:`.hypotheses.SANE_EXPONENT`) or
 never left its start (no step was accepted: the exponent is not estimated), or whose interval is
-wider than :data:`STABLE_HALF_WIDTH` or rests on fewer than half the trials, is not an effect. The
+wider than :data:`STABLE_HALF_WIDTH` or rests on fewer than half the trials, is not an effect; nor
+is a start of a form that ended within the interval of that form's best start (:func:`repeated`). The
 offset hypothesis (a constant the equation lacks) has no exponent: it is named :data:`OFFSET`
 whenever its fit is valid.
 """
@@ -132,6 +133,25 @@ def _offset_details(roles: catalogue.Roles) -> dict:
             "half_width": None, "on": None, "catalogue_exponent": None, "domain": "any", "description": OFFSET_DESCRIPTION,
             "reference": OFFSET_REFERENCE, "quantities": {"acts_on": None, "term": None, "depends_on": None},
             "assumed_quantities": dict(roles.assumed)}
+
+
+def repeated(hypotheses: list[Hypothesis], named: Naming, rmse: torch.Tensor) -> torch.Tensor:
+    """(C,) the starts of one form (kind, component, function) whose total exponent ended within
+    the interval of the form's best admissible start (least held-out ``rmse`` (C,)): the same
+    estimate again, from another start. Its own, narrower interval may hold no entry where the
+    best start's holds one, so as a rival it would contest the name with itself, and a bootstrap
+    trial it wins by a hair would count against it; it is neither."""
+    out = torch.zeros(len(hypotheses), dtype=torch.bool, device=rmse.device)
+    forms: dict[tuple, list[int]] = {}
+    for c, h in enumerate(hypotheses):
+        if h.kind not in EXPONENTLESS and bool(named.admissible[c]) and bool(torch.isfinite(rmse[c])):
+            forms.setdefault((h.kind, h.component, h.function), []).append(c)
+    for starts in forms.values():
+        best = min(starts, key=lambda c: float(rmse[c]))
+        centre, half = named.details[best]["total_exponent"], named.details[best]["half_width"]
+        for c in starts:
+            out[c] = c != best and abs(named.details[c]["total_exponent"] - centre) <= half
+    return out
 
 
 @dataclass(frozen=True)
