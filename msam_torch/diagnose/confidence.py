@@ -102,8 +102,8 @@ def apart(evidence: Evidence, best: int, others: list[int], relative: float,
 def summary(rmse: torch.Tensor, names: list[str], best: int, is_significant: bool, outcome: str,
             trial_outcomes: list[str], is_effect: torch.Tensor, evidence: Evidence, relative: float,
             generator: torch.Generator, pinned: tuple[Evidence, list[str]] | None = None) -> dict:
-    """The report's ``confidence``: ``margin`` (held-out RMSE of the best hypothesis with another
-    name, relative to the chosen one's), ``runner_up``; ``rival``, of the effect hypotheses
+    """The report's ``confidence``: ``margin`` (held-out RMSE of the best effect hypothesis with
+    another name, relative to the chosen one's), ``runner_up``; ``rival``, of the effect hypotheses
     (``is_effect``) with another name (an uncatalogued power law too) and the hypotheses ``pinned``
     at another entry's catalogue exponent (their evidence and names), the one hardest to tell
     apart on out-of-sample ``evidence`` (:func:`apart`: ``apart_p``, ``apart_p_held_out``,
@@ -111,7 +111,7 @@ def summary(rmse: torch.Tensor, names: list[str], best: int, is_significant: boo
     trials (NaN without trials) and the ``outcomes`` counted."""
     frequency = win_frequency(trial_outcomes, outcome) if trial_outcomes else float("nan")
     ranked = [int(c) for c in torch.argsort(rmse) if torch.isfinite(rmse[c])]
-    runner = next((c for c in ranked if names[c] != names[best] and c != 0), None) if is_significant else best
+    runner = next((c for c in ranked if names[c] != names[best] and bool(is_effect[c])), None) if is_significant else best
     reference = rmse[best] if is_significant else rmse[0]
     margin = float((rmse[runner] - reference) / reference) if runner is not None and reference > 0 else float("inf")
     others, labels = [], names
