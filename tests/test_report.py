@@ -13,7 +13,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from msam_torch.cli import main
 from msam_torch.diagnose import Verdict, diagnose
-from msam_torch.diagnose.document import interval_text, markdown
+from msam_torch.diagnose.document import interval_text, margin, markdown
 from msam_torch.diagnose.figures import DPI, Units, correlations, render
 from msam_torch.diagnose.html import page
 from tests.helpers import CONFIGS
@@ -186,3 +186,18 @@ def test_msam_diagnose_writes_the_html_and_tensorboard_and_replaces_them_as_one_
     assert main(["diagnose", str(CONFIGS / "msd_coulomb.yaml"), "--out", str(tmp_path / "bare"), "-q",
                  "--bootstrap", "2", "--no-tensorboard", "--no-plots"]) == 0
     assert sorted(p.name for p in (tmp_path / "bare").iterdir()) == ["gap_report.json", "report.html", "report.md"]
+
+
+def test_the_margin_names_the_rival_even_without_a_fitted_runner_up():
+    """The margin counts effect hypotheses only; a rival held at a catalogue exponent is still
+    reported when no fitted effect with another name is left (EMPS: the other fits are not
+    admissible or repeat the winner's form)."""
+    base = {"margin": 0.25, "runner_up": "power law, no catalogued effect", "rival": "power law, no catalogued effect",
+            "apart_p_held_out": 0.02, "apart_p_training": 0.04}
+    assert margin(base) == ("margin 25.0 % to power law, no catalogued effect, it as good in 2 % of held-out "
+                            "resamples and within the margin in 4 % of cross-fitted training ones")
+    pinned = {**base, "margin": math.inf, "runner_up": None, "rival": "quadratic drag at its catalogue exponent"}
+    assert margin(pinned) == ("no other fitted effect with another name; quadratic drag at its catalogue exponent as "
+                              "good in 2 % of held-out resamples and within the margin in 4 % of cross-fitted "
+                              "training ones")
+    assert margin({**pinned, "rival": None}) == "no competing hypothesis with another name"

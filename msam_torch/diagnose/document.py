@@ -220,13 +220,14 @@ def _named(naming: dict) -> list[str]:
 
 
 def margin(confidence: dict) -> str:
-    """The held-out RMSE margin to the best hypothesis with another name, if there is one, and how
-    often the rival predicts as well on held-out rows and within the margin on cross-fitted training
-    rows (:func:`.confidence.apart`)."""
-    if confidence["runner_up"] is None:
-        return "no competing hypothesis with another name"
+    """The held-out RMSE margin to the best effect hypothesis with another name, if there is one,
+    and how often the rival (that one, or one held at a catalogue exponent) predicts as well on
+    held-out rows and within the margin on cross-fitted training rows (:func:`.confidence.apart`)."""
     rival, runner = confidence.get("rival"), confidence["runner_up"]
-    text = f"margin {100 * confidence['margin']:.1f} % to {runner}"
+    if runner is None and rival is None:
+        return "no competing hypothesis with another name"
+    text = "no other fitted effect with another name" if runner is None else \
+        f"margin {100 * confidence['margin']:.1f} % to {runner}"
     if rival is None:
         return text
     who = ", it" if rival == runner else f"; {rival}"
