@@ -11,14 +11,18 @@ below which 99 % of a signal's power above its white-noise floor lies; the bump 
 passes ``f_b`` at half amplitude for the half-width ``h = 0.6 / f_b`` (time units of the system,
 not a share of the record). Records sampled far faster than the band are low-pass filtered and
 decimated (:func:`~msam_torch.bandwidth.decimate`) to about :data:`SAMPLES` samples, never below 7
-samples per band period nor 16 per half-width."""
+samples per band period nor 16 per half-width. A record sampled so slowly that a half-width holds
+fewer than 16 samples is, for the diagnosis, interpolated between them (:func:`refined`), to at most
+16 times :data:`SAMPLES` samples."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
 import torch
+from scipy.signal import resample_poly
 
 from . import hold
 from .bandwidth import band_edge, decimate
@@ -33,6 +37,7 @@ from .weak import half_width_for
 SAMPLES_PER_PERIOD = 7  # decimation keeps the band edge below 1/7 of the sampling rate
 DERIVATIVE_MARGIN = 2.0  # a derivative's smoother passes twice the band edge
 QUADRATURE = 16  # decimation keeps at least this many samples in a half-width
+REFINE = 8  # a record with fewer samples in a half-width is interpolated at most this many-fold
 SAMPLES = 1000  # records are low-pass filtered and decimated to about this many samples
 
 
@@ -65,13 +70,15 @@ class Estimation:
     half_width: float
     decimation: int
     info: dict
+    refinement: int = 1  # the signals are interpolated this many-fold between the (decimated) samples
 
     @property
     def reach(self) -> int:
-        """Samples over which a derivative estimate spreads one sample's noise (its widest window)."""
+        """Samples of the weak form's grid over which a derivative estimate spreads one sample's
+        noise (its widest window)."""
         derivatives = self.info["derivatives"]
         windows = [d.get("window") or 0 for d in derivatives.values()] if isinstance(derivatives, dict) else []
-        return max(windows, default=0)
+        return max(windows, default=0) * self.refinement
 
 
 def _measured(dataset: Dataset) -> dict[str, np.ndarray]:
@@ -141,10 +148,12 @@ def _signals(measured: dict, every: int, band: float, data: DataConfig, spec: Mo
 
 def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset | None,
            estimator: DerivativeEstimator, half_width: float | None = None, samples: int = SAMPLES,
-           band: tuple[float, dict] | None = None) -> Estimation:
+           band: tuple[float, dict] | None = None, refine: bool = False) -> Estimation:
     """The band of ``train`` (``band`` as :func:`regressor_band` gives it, else that of its
     measured states, :func:`record_band`), the half-width (``half_width`` when given) and
-    decimation it implies, and both records' weak-form signals on the training device."""
+    decimation it implies, and both records' weak-form signals on the training device; with
+    ``refine``, interpolated between samples where a half-width holds fewer than
+    :data:`QUADRATURE` of them (:func:`refined`)."""
     measured = _measured(train)
     t = measured["t"]
     dt = float(t[1] - t[0])
@@ -158,11 +167,48 @@ def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset 
                                        exact, source)
     try:
         signals, formed = build(train, "training data")
-        held = None if held_out is None else build(held_out, "held-out data")[0]
+        held = None if held_out is None else build(held_out, "held-out data")
     except DataError as error:
         raise DataError(f"after decimation by {every}: {error}") from None
-    signals, held = ({k: v.to(device) for k, v in d.items()} if d is not None else None for d in (signals, held))
+    # interpolated at most REFINE-fold, and to at most QUADRATURE * samples samples (the cost of every fit)
+    budget = QUADRATURE * samples // signals["t"].shape[-1]
+    fold = max(1, min(REFINE, math.ceil(QUADRATURE * every * dt / half_width), budget)) if refine else 1
+    signals, held = (None if d is None else _refined(*d, fold, device) for d in ((signals, formed), held))
+    form = "measured (unsmoothed)" if not exact else "given (exact)"
+    how = "linearly" if _held(formed) else "band-limited"
     info = {"band_edge": band / dt, "band_edges": {k: v / dt for k, v in edges.items()}, "half_width_rule": rule,
             "decimation": every, "derivative_cutoff": min(DERIVATIVE_MARGIN * band, 0.45) / dt,
-            "weak_form_signals": "measured (unsmoothed)" if not exact else "given (exact)", **formed}
-    return Estimation(signals, held, half_width, every, info)
+            "weak_form_signals": form + (f", interpolated {how} {fold}-fold between samples" if fold > 1 else ""),
+            "refinement": fold, **formed}
+    return Estimation(signals, held, half_width, every, info, fold)
+
+
+def _held(formed: dict) -> bool:
+    return any(b == "zoh" for b in formed["input_hold"].values())
+
+
+def _refined(signals: dict, formed: dict, k: int, device) -> dict:
+    """A record's weak-form signals on ``device``, interpolated ``k``-fold (:func:`refined`): linearly
+    where an input is held (its states kink at every switch, and a band-limited interpolation rings
+    there), else band-limited."""
+    smooth = not _held(formed)
+    return {name: refined(v.to(device), k, smooth and name != "t") for name, v in signals.items()}
+
+
+def refined(signal: torch.Tensor, k: int, band_limited: bool = False) -> torch.Tensor:
+    """A signal (time on its last axis) interpolated ``k``-fold between its samples: where a
+    half-width holds fewer than :data:`QUADRATURE` samples, the weak form's quadrature of a candidate
+    function (``sign(v)`` of a speed that reverses within a few samples) needs points between them.
+    Linearly, or band-limited (the polyphase low-pass of :func:`scipy.signal.resample_poly`), which
+    keeps a smooth function of a signal within a few tenths of a percent of its weak form where linear
+    interpolation is off by several percent."""
+    if k <= 1:
+        return signal
+    n = signal.shape[-1]
+    if band_limited:
+        fine = resample_poly(signal.detach().cpu().numpy(), k, 1, axis=-1, padtype="line")[..., :(n - 1) * k + 1]
+        return torch.as_tensor(np.ascontiguousarray(fine), dtype=signal.dtype, device=signal.device)
+    position = torch.arange((n - 1) * k + 1, device=signal.device, dtype=torch.float64) / k
+    left = position.floor().long().clamp(max=n - 2)
+    w = (position - left).to(signal.dtype)
+    return signal[..., left] * (1 - w) + signal[..., left + 1] * w

@@ -72,7 +72,7 @@ def _diagnose_once(config: Config, data: DataArgument, validation: DataArgument,
     parameters = nominal_parameters(config, spec)
     generator = torch.Generator().manual_seed(options.seed)
     estimation = choose(spec, config.data, train, held_out, plan.derivatives, options.half_width,
-                        options.quadrature_samples)
+                        options.quadrature_samples, refine=True)
     equations = [diagnose_equation(spec, equation, train, estimation, parameters, options, generator)
                  for equation in tracked(spec.equations, LOGGER, "diagnose", lambda e: f"equation {e.target}", total, 1)]
     gaps = tuple(e.gap for e in equations)

@@ -64,8 +64,10 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
 
     # bootstrap trials: time blocks and measurement noise
     source, order = target_source(extended, weak.signals)
-    # white noise keeps about 1 / decimation of its power through the anti-alias filter
-    noise = float(train.info.get("noise_level", {}).get(source, 0.0) or 0.0) / estimation.decimation**0.5
+    # white noise keeps about 1 / decimation of its power through the anti-alias filter; interpolated
+    # between samples it is integrated as on the samples (a test function's norm there is sqrt(k) larger)
+    noise = float(train.info.get("noise_level", {}).get(source, 0.0) or 0.0) \
+        * (estimation.refinement / estimation.decimation)**0.5
     boot = bootstrap(weak, choices, q, original, rmse, noise, order, options, step_options, generator)
 
     # catalogue names within each hypothesis's bootstrap interval of its total exponent
@@ -123,7 +125,8 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
         structure_left=structure, components=_components(equation, hypotheses, rmse),
         ranking=_ranking(equation, hypotheses, rmse, names, named, original, text), where=where["summary"],
         estimator={"test_function": "bump (1-s^2)^4", "half_width": weak.tests.half_width * weak.tests.dt,
-                   "half_width_samples": weak.tests.half_width, "rows": weak.rows, **estimation.info},
+                   "half_width_samples": weak.tests.half_width / estimation.refinement,  # of the (decimated) record
+                   "rows": weak.rows, **estimation.info},
         checks={**checks, "reasons": reasons},
         intervals=term_intervals(extended, equation, choices, original, boot, winner, weak.scale),
     )
