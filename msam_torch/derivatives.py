@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from math import comb
 from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
@@ -61,6 +62,7 @@ HIGHEST_CUTOFF = 0.45  # cycles per sample: a low-pass cut-off must lie below Ny
 INTERPOLATING_DEGREE = 5  # odd: the quintic interpolating spline
 OCTAVE = 2**0.5  # the periodogram is averaged over [f / OCTAVE, f * OCTAVE] before the noise floor is met
 BAND = 9  # and over this many bins at least
+DIFFERENCE_ORDERS = range(3, 9)  # the noise level is read from the differences of these orders
 
 
 @dataclass(frozen=True)
@@ -72,17 +74,20 @@ class Estimate:
 
 
 def noise_level(y: np.ndarray) -> float:
-    """Rough standard deviation of white measurement noise from third differences.
+    """Rough standard deviation of white measurement noise from the signal's differences.
 
-    ``diff(y, 3)`` of a smooth, finely sampled signal is ~0, and of white noise has variance
-    ``20 sigma^2``; the median absolute deviation makes the estimate robust to a few outliers.
+    The ``k``-th difference of white noise has variance ``C(2k, k) sigma^2`` at every ``k``; that of
+    a smooth, finely sampled signal is ~0 and shrinks with ``k``, but not at low ``k`` where the
+    signal has power near the sampling rate or kinks (a state driven by a held input): the least of
+    the estimates over :data:`DIFFERENCE_ORDERS`, each the median absolute deviation of the
+    differences (robust to a few outliers) over ``sqrt(C(2k, k))``.
     """
     y = np.asarray(y, dtype=float)
-    if y.size < 5:
-        return float("nan")
-    d = np.diff(y, 3)
-    mad = np.median(np.abs(d - np.median(d))) * 1.4826
-    return float(mad / np.sqrt(20.0))
+    levels = []
+    for k in (k for k in DIFFERENCE_ORDERS if y.size >= k + 2):
+        d = np.diff(y, k)
+        levels.append(np.median(np.abs(d - np.median(d))) * 1.4826 / np.sqrt(comb(2 * k, k)))
+    return float(min(levels, default=float("nan")))
 
 
 def periodogram(y: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray, float]:
@@ -384,8 +389,9 @@ def _butterworth(t: np.ndarray, y: np.ndarray, cutoff: float | None, name: str, 
             raise DataError(f"{name}: data.cutoff={cutoff:g} must lie between 0 and the Nyquist frequency "
                             f"{0.5 / dt:.6g} (cycles per time unit)")
     sos = butter(BUTTERWORTH_ORDER, 2.0 * per_sample, output="sos")
-    padding = min(int(np.ceil(3.0 / per_sample)), y.size - 1)  # odd extension over ~3 periods at the cut-off:
-    # scipy's default (27 samples) leaves the filter's start-up transient in the edge derivatives
+    # odd extension over ~3 periods at the cut-off, never shorter than scipy's default (27 samples for
+    # this order), which alone leaves the start-up transient of a low cut-off in the edge derivatives
+    padding = min(max(int(np.ceil(3.0 / per_sample)), 3 * (2 * len(sos) + 1)), y.size - 1)
     info = {**info, "cutoff": per_sample / dt, "cutoff_per_sample": per_sample, "window_rule": rule,
             "filter_order": BUTTERWORTH_ORDER, "zero_phase": True}
     return np.ascontiguousarray(sosfiltfilt(sos, y, padlen=padding)), info
