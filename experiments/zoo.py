@@ -196,8 +196,10 @@ def outcome(row: dict) -> str:
     verdicts = {t: e["verdict"] for t, e in ours["equations"].items()}
     flagged = [t for t, v in verdicts.items() if v != Verdict.NO_GAP.text()]
     named = [t for t, v in verdicts.items() if score.explained(v)]
+    undecided = all(verdicts[t] == Verdict.INCONCLUSIVE.text() for t in flagged)
     if truth["kind"] != "catalogued":
-        return "no gap" if not flagged else "named an effect" if named else "gap, not explained"
+        return ("no gap" if not flagged else "named an effect" if named else "inconclusive" if undecided
+                else "gap, not explained")
     if ours["top1"]:
         return "top-1"
     targets = truth["targets"]
