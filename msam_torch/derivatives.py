@@ -77,10 +77,12 @@ def noise_level(y: np.ndarray) -> float:
     """Rough standard deviation of white measurement noise from the signal's differences.
 
     The ``k``-th difference of white noise has variance ``C(2k, k) sigma^2`` at every ``k``; that of
-    a smooth, finely sampled signal is ~0 and shrinks with ``k``, but not at low ``k`` where the
-    signal has power near the sampling rate or kinks (a state driven by a held input): the least of
-    the estimates over :data:`DIFFERENCE_ORDERS`, each the median absolute deviation of the
-    differences (robust to a few outliers) over ``sqrt(C(2k, k))``.
+    a smooth signal shrinks with ``k`` where its power lies below about a sixth of the sampling
+    rate, and the median ignores kinks at a minority of the samples (a state driven by a held
+    input that switches every few samples): the least of the estimates over
+    :data:`DIFFERENCE_ORDERS`, each the median absolute deviation of the differences over
+    ``sqrt(C(2k, k))``. A signal with most of its power near the Nyquist frequency (a state that
+    relaxes within a sample, switched every sample or two) still reads as noise at every order.
     """
     y = np.asarray(y, dtype=float)
     levels = []

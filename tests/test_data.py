@@ -181,3 +181,19 @@ def test_parquet_files_load_like_csv(tmp_path):
     assert set(loaded[0]) == set(loaded[1]) >= {"x", "x_ddot", "u"}
     for name in loaded[0]:
         assert (loaded[0][name] == loaded[1][name]).all(), name
+
+
+def test_noise_level_reads_no_noise_in_a_noise_free_kinked_state():
+    """A first-order state under a PRBS held for 8 samples (relaxing at 0.3 per sample): its third
+    differences alone read 0.24 % of its spread as noise, the least over the orders 3-8 reads none;
+    with 1 % white noise added, the estimate is within 25 % of it."""
+    rng = np.random.default_rng(0)
+    u = np.repeat(rng.choice([-1.0, 1.0], size=251), 8)[:2000]
+    x = np.zeros(2000)
+    for j in range(1, 2000):
+        x[j] = x[j - 1] * np.exp(-0.3) + u[j - 1] * (1 - np.exp(-0.3))
+    third = np.diff(x, 3)
+    assert np.median(np.abs(third - np.median(third))) * 1.4826 / np.sqrt(20) > 1e-3 * x.std()
+    assert noise_level(x) < 1e-5 * x.std()
+    sigma = 0.01 * x.std()
+    assert noise_level(x + sigma * rng.standard_normal(x.size)) == pytest.approx(sigma, rel=0.25)
