@@ -207,7 +207,8 @@ def outcome(row: dict) -> str:
         return "another equation flagged, not the truth's" if flagged else "no significant gap"
     target = targets[0]
     if target not in named:
-        return "gap, not explained (no catalogued name)"
+        return ("inconclusive" if verdicts[target] == Verdict.INCONCLUSIVE.text()
+                else "gap, not explained (no catalogued name)")
     if truth["name"].lower() not in verdicts[target].lower():
         return "wrong name (confident)"
     if any(t not in targets for t in flagged):

@@ -14,7 +14,7 @@ from scipy.integrate import solve_ivp
 from msam_torch.bandwidth import band_edge
 from msam_torch.cli import main
 from msam_torch.derivatives import BAND
-from msam_torch.diagnose import DiagnoseOptions, EquationGap, Verdict, diagnose
+from msam_torch.diagnose import NOT_CATALOGUED, DiagnoseOptions, EquationGap, Verdict, diagnose
 from msam_torch.weak import HALF_AMPLITUDE
 from msam_torch.diagnose.confidence import resamples, told_apart
 from msam_torch.diagnose.verdict import demoted, equation_verdict, free_run_reasons, overall
@@ -124,26 +124,44 @@ def test_a_re_fit_worse_only_within_the_free_runs_resolution_is_no_reason():
 
 def test_no_gap_needs_a_residual_that_looks_like_noise():
     clean, sure = {"failed": []}, {"win_frequency": float("nan"), "apart_p": 0.0}
-    assert equation_verdict(False, False, sure, 0.0, clean, DiagnoseOptions()) == (Verdict.NO_GAP, [])
-    kind, reasons = equation_verdict(False, False, sure, 0.0, {"failed": ["autocorrelated"]}, DiagnoseOptions())
+    assert equation_verdict(False, NOT_CATALOGUED, sure, 0.0, clean, DiagnoseOptions()) == (Verdict.NO_GAP, [])
+    kind, reasons = equation_verdict(False, NOT_CATALOGUED, sure, 0.0, {"failed": ["autocorrelated"]},
+                                     DiagnoseOptions())
     assert kind is Verdict.INCONCLUSIVE and reasons[0] == "autocorrelated" and "candidate" in reasons[1]
 
 
 def test_a_name_needs_to_predict_the_held_out_rows_better_than_another_name():
     """The block bootstrap of the held-out errors: a winner whose errors are 0.9 of the runner-up's
     on every row is told apart (no resample favours the runner-up); two that differ by independent
-    scatter are not (p > 0.05), and the verdict is then "not explained", naming the runner-up."""
+    scatter are not (p > 0.05), and the verdict is then "inconclusive", naming both."""
     rng, generator = np.random.default_rng(0), torch.Generator().manual_seed(0)
     base = torch.tensor(rng.standard_normal(400))
     assert told_apart(torch.stack([0.9 * base, base]), 0, 1, resamples(10, generator)) == 0.5**10  # wins every block
     noisy = base + 0.05 * torch.tensor(rng.standard_normal((2, 400)))  # neither better than the other
     p = told_apart(noisy, 0, 1, resamples(10, generator))
     assert 0.05 < p < 0.95
-    sure = {"win_frequency": 1.0, "apart_p": p, "rival": "power-law damping"}
-    kind, reasons = equation_verdict(True, True, sure, 0.0, {"failed": []}, DiagnoseOptions())
-    assert kind is Verdict.NOT_EXPLAINED and "not told apart from power-law damping" in reasons[0]
-    assert equation_verdict(True, True, {**sure, "apart_p": 0.01}, 0.0, {"failed": []}, DiagnoseOptions())[0] \
+    sure, clean = {"win_frequency": 1.0, "apart_p": p, "rival": "power-law damping"}, {"failed": []}
+    kind, reasons = equation_verdict(True, "quadratic drag", sure, 0.0, clean, DiagnoseOptions())
+    assert kind is Verdict.INCONCLUSIVE
+    assert reasons[0].startswith("the best fit, quadratic drag, is not told apart from power-law damping")
+    assert "wider range" in reasons[1]
+    assert equation_verdict(True, "quadratic drag", {**sure, "apart_p": 0.01}, 0.0, clean, DiagnoseOptions())[0] \
         is Verdict.EXPLAINED
+
+
+def test_a_power_law_as_good_as_a_catalogued_effect_is_inconclusive_and_one_better_than_all_is_not_explained():
+    """The best fit has no catalogued name: when an effect with a name (here one held at its
+    catalogue exponent) predicts the out-of-sample rows as well, the data cannot tell which law it
+    is, and the verdict says so; when every named rival is told apart (or there is none), the gap
+    is not explained by the candidate set."""
+    sure, clean = {"win_frequency": 1.0, "apart_p": 1.0, "rival": "radiation at its catalogue exponent"}, {"failed": []}
+    kind, reasons = equation_verdict(True, NOT_CATALOGUED, sure, 0.0, clean, DiagnoseOptions())
+    assert kind is Verdict.INCONCLUSIVE and "not told apart from radiation at its catalogue exponent" in reasons[0]
+    assert "(p = 1)" in reasons[0]
+    for told in ({**sure, "apart_p": 0.01}, {**sure, "apart_p": 0.0, "rival": None}):
+        assert equation_verdict(True, NOT_CATALOGUED, told, 0.0, clean, DiagnoseOptions()) == (Verdict.NOT_EXPLAINED, [])
+    assert equation_verdict(True, "quadratic drag", {**sure, "apart_p": 0.01}, 0.3, clean, DiagnoseOptions())[0] \
+        is Verdict.NOT_EXPLAINED  # told apart, but leaves more residual structure than allowed
 
 
 def test_held_out_rows_are_resampled_in_blocks_as_long_as_their_errors_are_dependent():

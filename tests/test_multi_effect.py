@@ -3,6 +3,7 @@ order (cubic stiffness first, or quadratic drag first, found beside a provisiona
 one, exactly one; with none, none. And the adapted structure written as a starting model computes
 the adapted model's rate."""
 import re
+from dataclasses import replace
 from functools import lru_cache
 
 import numpy as np
@@ -117,10 +118,11 @@ DRAG, CUBIC, BIASED = "x_dot*abs(x_dot)**1", "x*abs(x)**2", "x*abs(x)**2.3"
 START_TERMS = [c["term"] for c in MODEL["equations"][0]["components"]]
 
 
-def scripted(seen: list):
+def scripted(seen: list, first: Verdict = Verdict.NOT_EXPLAINED):
     """Diagnoses as a script: at the user's start the cubic stiffness is significant but not named
-    (biased by the drag missing); beside it, added provisionally, the drag is named; with the drag
-    in, the cubic stiffness is named; with both, no gap. ``seen`` collects each model's terms."""
+    (``first``: biased by the drag missing; inconclusive: not told apart from a rival); beside it,
+    added provisionally, the drag is named; with the drag in, the cubic stiffness is named; with
+    both, no gap. ``seen`` collects each model's terms."""
     def add(config, term):
         raw = config.model.model_dump(mode="json", exclude_none=True)
         raw["equations"][0]["components"].append({"term": term, "theta": -1.0, "adjustable": False})
@@ -130,7 +132,7 @@ def scripted(seen: list):
         terms = [c.term for c in config.model.equations[0].components]
         seen.append(terms)
         if terms == START_TERMS:
-            kind, effect, term = Verdict.NOT_EXPLAINED, None, BIASED
+            kind, effect, term = first, None, BIASED
         elif DRAG not in terms:
             kind, effect, term = Verdict.EXPLAINED, "quadratic drag", DRAG
         elif CUBIC not in terms:
@@ -142,10 +144,12 @@ def scripted(seen: list):
     return diagnose_round
 
 
-def test_an_effect_biased_by_another_is_accepted_once_that_one_is_in():
-    """Both accepted in turn, the second beside a provisional power law that is taken out again."""
+@pytest.mark.parametrize("first", [Verdict.NOT_EXPLAINED, Verdict.INCONCLUSIVE])
+def test_an_effect_biased_by_another_is_accepted_once_that_one_is_in(first):
+    """Both accepted in turn, the second beside a provisional power law that is taken out again
+    (the first gap not explained, or inconclusive: its best fit not told apart from a rival)."""
     seen = []
-    r = in_turn(load_config({"model": MODEL}), scripted(seen), max_effects=3)
+    r = in_turn(load_config({"model": MODEL}), scripted(seen, first), max_effects=3)
     assert [e["effect"] for e in r.in_turn["effects"]] == ["quadratic drag", "hardening cubic stiffness"]
     assert r.in_turn["effects"][0]["beside_provisional"] == ["adapted"]
     assert r.in_turn["effects"][1]["beside_provisional"] is None
@@ -164,6 +168,18 @@ def test_max_effects_bounds_the_loop():
     assert [e["effect"] for e in r.in_turn["effects"]] == ["quadratic drag"]
     assert "--max-effects" in r.in_turn["stopped"]
     assert seen[-1] == START_TERMS + [DRAG] and len(seen) == 3
+
+
+def test_no_provisional_effect_where_an_equation_without_a_gap_failed_its_checks():
+    """An equation with no significant effect whose residual failed its checks leaves the report
+    inconclusive for another reason than a tie: nothing is added provisionally, the loop stops."""
+    def diagnose_round(config):
+        unchecked = replace(_gap("y_ddot", Verdict.NO_GAP), verdict_kind=Verdict.INCONCLUSIVE)
+        gaps = (_gap("x_ddot", Verdict.INCONCLUSIVE), unchecked)
+        return GapReport(Verdict.INCONCLUSIVE, "inconclusive", gaps, {}, {}, {}, {}, 0.0), lambda targets: config
+    r = in_turn(load_config({"model": MODEL}), diagnose_round, max_effects=3)
+    assert r.in_turn["effects"] == [] and r.in_turn["diagnoses"] == 1
+    assert r.in_turn["stopped"].startswith("no effect accepted: the diagnosis of the remaining gap is inconclusive")
 
 
 def test_one_withheld_effect_stops_after_one():

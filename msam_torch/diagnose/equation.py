@@ -104,8 +104,7 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     checks = residual_checks(equation, weak, choices, original, [u for u in spec.inputs if u in weak.val_signals],
                              options.check_level, options.max_residual_structure, options.absolute,
                              estimation.reach)
-    kind, reasons = equation_verdict(is_significant, outcome != catalogue.NOT_CATALOGUED, sure, structure, checks,
-                                     options)
+    kind, reasons = equation_verdict(is_significant, outcome, sure, structure, checks, options)
     winner = best if is_significant else 0
     where = starting_where(equation, weak.signals)
 

@@ -8,10 +8,10 @@ The loop stops when no significant gap remains, when the next effect is not acce
 
 Two effects missing at once bias the fit of either alone (a cubic stiffness fitted while quadratic
 drag is missing reads exponent 3.3, outside the catalogue's interval), so a significant effect
-that is not explained is added *provisionally*: when the diagnosis beside it accepts an effect,
-that effect is added to the model without the provisional one, and the loop goes on from there
-(the provisional effect, now unbiased, may be accepted in the next step). Nothing provisional is
-ever kept or reported as accepted.
+that is not explained, or not told apart from a rival, is added *provisionally*: when the
+diagnosis beside it accepts an effect, that effect is added to the model without the provisional
+one, and the loop goes on from there (the provisional effect, now unbiased, may be accepted in the
+next step). Nothing provisional is ever kept or reported as accepted.
 
 The report returned is the first diagnosis (of the user's starting model) with ``in_turn``: every
 accepted effect in order with the held-out gap before and after it (weak-form RMSE and free-run
@@ -27,7 +27,7 @@ from typing import Callable, Optional
 from ..config import Config
 from .adapted import without
 from .report import GapReport
-from .verdict import Verdict
+from .verdict import Verdict, free_run_reasons
 
 Adapt = Callable[[list], Config]  # the config with the effects of these equations added
 Round = Callable[[Config], "tuple[GapReport, Optional[Adapt]]"]  # one diagnosis, and how to adapt its model
@@ -51,7 +51,7 @@ def in_turn(config: Config, diagnose_round: Round, max_effects: int) -> GapRepor
     report, model, steps, step = first, config, [], 1
     while True:
         found, beside = report, None
-        if report.verdict_kind is Verdict.NOT_EXPLAINED and adapt is not None:
+        if adapt is not None and _unexplained(report):
             provisional = adapt([g.target for g in report.equations if g.significant])
             found, adapt_beside = timed(provisional)
             beside = [g.adapted_equation for g in report.equations if g.significant]
@@ -82,6 +82,16 @@ def in_turn(config: Config, diagnose_round: Round, max_effects: int) -> GapRepor
     kind = Verdict.EXPLAINED if steps else first.verdict_kind
     return replace(first, verdict_kind=kind, verdict=verdict, seconds=sum(seconds),
                    in_turn={"effects": steps, "stopped": stopped, "final_model": final, "diagnoses": len(seconds)})
+
+
+def _unexplained(report: GapReport) -> bool:
+    """Whether a significant gap is left that no effect explains, "not explained" or inconclusive
+    only because its best fit is not told apart from a rival, every other equation without a gap,
+    and the free runs raise no doubt: a gap to add the best power law to provisionally."""
+    gaps, unsettled = report.equations, (Verdict.NOT_EXPLAINED, Verdict.INCONCLUSIVE)
+    return (any(g.significant for g in gaps)
+            and all(g.verdict_kind in unsettled if g.significant else g.verdict_kind is Verdict.NO_GAP for g in gaps)
+            and not free_run_reasons(report.measures.get("free_run", {}), Verdict.NOT_EXPLAINED))
 
 
 def _equations(report: GapReport, adapted) -> dict:

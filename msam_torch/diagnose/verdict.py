@@ -10,6 +10,7 @@ from dataclasses import replace
 from enum import Enum
 from typing import Sequence
 
+from .catalogue import NOT_CATALOGUED
 from .options import AGREEMENT, DiagnoseOptions
 
 
@@ -37,26 +38,34 @@ TRY = {"estimation": "try another --half-width or a held-out record from another
        "residual": "the starting model misses something the candidates do not express: add candidate adjustments "
                    "or components, or try another --half-width",
        "simulated residual": "the starting model misses something the candidates do not express: add candidate "
-                             "adjustments or components"}
+                             "adjustments or components",
+       "apart": "a record that spans a wider range of the signals the two read, or another excitation, may tell "
+                "them apart"}
 
 
-def equation_verdict(significant: bool, named: bool, confidence: dict, structure_left: float,
+def equation_verdict(significant: bool, effect: str, confidence: dict, structure_left: float,
                      checks: dict, options: DiagnoseOptions) -> tuple[Verdict, list[str]]:
-    """One equation and its reasons: a significant effect (null rule) is explained when it has a
-    catalogue name, predicts out-of-sample rows better than every effect hypothesis with another
-    name beyond chance (:func:`.confidence.apart`: ``confidence["apart_p"]`` at most
-    ``options.apart_level``), wins at least ``options.min_win_frequency`` of the bootstrap trials
-    (NaN without trials: not checked) and leaves at most ``options.max_structure_left`` of the
-    residual structure; no significant effect is "no significant gap" only when the re-fitted
-    start's residual passes ``checks`` (:func:`~.structure.residual_checks`), else inconclusive."""
+    """One equation and its reasons; ``effect``: the name of the best effect hypothesis. A
+    significant effect (null rule) is explained when it has a catalogue name, predicts
+    out-of-sample rows better than every effect hypothesis with another name beyond chance
+    (:func:`.confidence.apart`: ``confidence["apart_p"]`` at most ``options.apart_level``), wins
+    at least ``options.min_win_frequency`` of the bootstrap trials (NaN without trials: not
+    checked) and leaves at most ``options.max_structure_left`` of the residual structure. When it
+    is not told apart from its rival and either of the two has a name (a catalogued effect, or
+    one held at its catalogue exponent), the data do not tell which explains the gap: inconclusive,
+    naming both; "not explained" is left for a gap that only uncatalogued laws fit best. No
+    significant effect is "no significant gap" only when the re-fitted start's residual passes
+    ``checks`` (:func:`~.structure.residual_checks`), else inconclusive."""
     if not significant:
         return no_gap_verdict(checks)
-    if not named:
-        return Verdict.NOT_EXPLAINED, []
-    if confidence["apart_p"] > options.apart_level:
-        return Verdict.NOT_EXPLAINED, [f"not told apart from {confidence['rival']} on out-of-sample rows "
-                                       f"(p = {confidence['apart_p']:.2g})"]
-    if not confidence["win_frequency"] < options.min_win_frequency and structure_left <= options.max_structure_left:
+    named = effect != NOT_CATALOGUED
+    rival = confidence.get("rival")
+    if confidence["apart_p"] > options.apart_level and (named or rival not in (None, NOT_CATALOGUED)):
+        return Verdict.INCONCLUSIVE, [f"the best fit, {effect}, is not told apart from {rival} on out-of-sample "
+                                      f"rows (p = {confidence['apart_p']:.2g}): these data do not tell which "
+                                      "explains the gap", TRY["apart"]]
+    if named and not confidence["win_frequency"] < options.min_win_frequency \
+            and structure_left <= options.max_structure_left:
         return Verdict.EXPLAINED, []
     return Verdict.NOT_EXPLAINED, []
 
