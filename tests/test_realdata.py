@@ -11,7 +11,7 @@ from msam_torch.config import load_config
 from msam_torch.data import load_datasets
 from msam_torch.simulation import free_run_models
 from msam_torch.spec import ModelSpec
-from msam_torch.diagnose import diagnose
+from msam_torch.diagnose import NOT_CATALOGUED, Verdict, diagnose
 from msam_torch.errors import DataError
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
@@ -64,6 +64,22 @@ def test_emps_names_coulomb_friction_on_a_slice():
     assert force_error(equation, start, train.signals, "tau") > 0.15
     assert force_error(equation, eq, train.signals, "tau") < 0.06
     assert force_error(equation, named, train.signals, "tau") < 0.06
+
+
+@pytest.mark.slow
+def test_emps_from_the_naive_config_is_a_tie_with_coulomb_friction_not_a_name():
+    """EMPS from the textbook start (viscous friction only, not split): the best fit makes the
+    viscous term an uncatalogued power law (total exponent about 0.4), and Coulomb friction held at
+    its catalogue exponent predicts the validation pulses as well: inconclusive, naming both, where
+    the data do not tell them apart; never a name, and never "not explained"."""
+    report = diagnose(CONFIGS / "emps_naive.yaml", base_dir=CONFIGS)
+    (gap,) = report.equations
+    assert report.verdict_kind is Verdict.INCONCLUSIVE and gap.verdict_kind is Verdict.INCONCLUSIVE
+    assert gap.significant and gap.effect == NOT_CATALOGUED
+    assert gap.confidence["rival"] == "Coulomb friction at its catalogue exponent"
+    assert gap.confidence["apart_p"] > 0.5
+    assert "is not told apart from Coulomb friction at its catalogue exponent" in gap.checks["reasons"][0]
+    assert gap.naming["total_exponent"] == pytest.approx(0.4, abs=0.2)
 
 
 @pytest.mark.slow
