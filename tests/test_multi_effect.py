@@ -170,13 +170,22 @@ def test_max_effects_bounds_the_loop():
     assert seen[-1] == START_TERMS + [DRAG] and len(seen) == 3
 
 
-def test_no_provisional_effect_where_an_equation_without_a_gap_failed_its_checks():
-    """An equation with no significant effect whose residual failed its checks leaves the report
-    inconclusive for another reason than a tie: nothing is added provisionally, the loop stops."""
+DIVERGED_RETUNED = {"free_run": {"held_out": {"diverged": ["retuned"], "nrmse": {"start": 0.5, "retuned": None,
+                                                                                 "adapted": 0.1},
+                                               "solver": {"unconverged": [], "method": "rk4", "step": 0.01}}}}
+
+
+@pytest.mark.parametrize("reason", ["checks", "free run"])
+def test_no_provisional_effect_where_the_report_is_inconclusive_for_another_reason_than_a_tie(reason):
+    """A tied gap beside an equation without a gap whose residual failed its checks, or with the
+    re-fitted start's free run diverged, leaves the report inconclusive for another reason than
+    the tie: nothing is added provisionally, the loop stops."""
     def diagnose_round(config):
-        unchecked = replace(_gap("y_ddot", Verdict.NO_GAP), verdict_kind=Verdict.INCONCLUSIVE)
-        gaps = (_gap("x_ddot", Verdict.INCONCLUSIVE), unchecked)
-        return GapReport(Verdict.INCONCLUSIVE, "inconclusive", gaps, {}, {}, {}, {}, 0.0), lambda targets: config
+        other = replace(_gap("y_ddot", Verdict.NO_GAP), verdict_kind=Verdict.INCONCLUSIVE if reason == "checks"
+                        else Verdict.NO_GAP)
+        gaps = (_gap("x_ddot", Verdict.INCONCLUSIVE), other)
+        measures = DIVERGED_RETUNED if reason == "free run" else {}
+        return GapReport(Verdict.INCONCLUSIVE, "inconclusive", gaps, measures, {}, {}, {}, 0.0), lambda targets: config
     r = in_turn(load_config({"model": MODEL}), diagnose_round, max_effects=3)
     assert r.in_turn["effects"] == [] and r.in_turn["diagnoses"] == 1
     assert r.in_turn["stopped"].startswith("no effect accepted: the diagnosis of the remaining gap is inconclusive")
