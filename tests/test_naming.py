@@ -255,7 +255,7 @@ def test_a_name_is_told_apart_from_another_entry_at_its_catalogue_exponent():
     """The free fits hold no rival with another name, but the hypothesis pinned at another entry's
     exponent predicts the out-of-sample rows as well: that entry is the rival and the p-value is
     high; a pinned fit of the winner's own entry is no rival, and a far worse one is told apart."""
-    from msam_torch.diagnose.confidence import Evidence, summary
+    from msam_torch.diagnose.confidence import Evidence, Pinned, summary
 
     generator = torch.Generator().manual_seed(0)
     base = torch.sin(torch.linspace(0, 20, 400, dtype=torch.float64))
@@ -267,7 +267,10 @@ def test_a_name_is_told_apart_from_another_entry_at_its_catalogue_exponent():
     alone = summary(*args)
     assert alone["rival"] is None and alone["apart_p"] == 0.0
     wobble = 0.05 * torch.cos(torch.linspace(0, 200, 400, dtype=torch.float64))
-    close = summary(*args, (evidence(torch.stack([base + wobble, 0.9 * base])), ["quadratic drag", "power-law damping"]))
+    close = summary(*args, Pinned(evidence(torch.stack([base + wobble, 0.9 * base])),
+                                  ["quadratic drag", "power-law damping"], ["y = drag", "y = damping"]))
     assert close["rival"] == "quadratic drag at its catalogue exponent" and close["apart_p"] > 0.2
-    far = summary(*args, (evidence(torch.stack([2 * base])), ["quadratic drag"]))
+    assert close["rival_equation"] == "y = drag"  # the pinned rival's own fit
+    far = summary(*args, Pinned(evidence(torch.stack([2 * base])), ["quadratic drag"], ["y = drag"]))
     assert far["rival"] == "quadratic drag at its catalogue exponent" and far["apart_p"] == 0.5**10  # every block
+    assert alone["rival_equation"] is None

@@ -13,6 +13,7 @@ from msam_torch.simulation import free_run_models
 from msam_torch.spec import ModelSpec
 from msam_torch.diagnose import NOT_CATALOGUED, Verdict, diagnose
 from msam_torch.errors import DataError
+from msam_torch.zoo.score import parse_equation
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
@@ -80,6 +81,9 @@ def test_emps_from_the_naive_config_is_a_tie_with_coulomb_friction_not_a_name():
     assert gap.confidence["apart_p"] > 0.5
     assert "is not told apart from Coulomb friction at its catalogue exponent" in gap.checks["reasons"][0]
     assert gap.naming["total_exponent"] == pytest.approx(0.4, abs=0.2)
+    held = parse_equation(gap.confidence["rival_equation"])  # the rival's own fit, shown beside the verdict
+    assert -held["q_dot|q_dot|^-1.000"] / held["tau"] == pytest.approx(20.39, rel=0.1)  # Fc, N
+    assert f"as good, Coulomb friction at its catalogue exponent: {gap.confidence['rival_equation']}" in str(report)
 
 
 @pytest.mark.slow

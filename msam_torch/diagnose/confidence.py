@@ -60,6 +60,16 @@ class Evidence:
                         self.blocks)
 
 
+@dataclass(frozen=True)
+class Pinned:
+    """The hypotheses held at other entries' catalogue exponents: their :class:`Evidence`, entry
+    names and fitted equations."""
+
+    evidence: Evidence
+    names: list[str]
+    equations: list[str]
+
+
 def resamples(blocks: int, generator: torch.Generator) -> torch.Tensor:
     """:data:`RESAMPLES` draws of ``blocks`` block indices, each drawn with replacement (R, blocks)."""
     return torch.randint(0, blocks, (RESAMPLES, blocks), generator=generator)
@@ -101,14 +111,15 @@ def apart(evidence: Evidence, best: int, others: list[int], relative: float,
 
 def summary(rmse: torch.Tensor, names: list[str], best: int, is_significant: bool, outcome: str,
             trial_outcomes: list[str], is_effect: torch.Tensor, evidence: Evidence, relative: float,
-            generator: torch.Generator, pinned: tuple[Evidence, list[str]] | None = None) -> dict:
+            generator: torch.Generator, pinned: Pinned | None = None) -> dict:
     """The report's ``confidence``: ``margin`` (held-out RMSE of the best effect hypothesis with
     another name, relative to the chosen one's), ``runner_up``; ``rival``, of the effect hypotheses
     (``is_effect``) with another name (an uncatalogued power law too) and the hypotheses ``pinned``
     at another entry's catalogue exponent (their evidence and names), the one hardest to tell
     apart on out-of-sample ``evidence`` (:func:`apart`: ``apart_p``, ``apart_p_held_out``,
-    ``apart_p_training``; 0 without a rival); ``win_frequency`` of ``outcome`` over the bootstrap
-    trials (NaN without trials) and the ``outcomes`` counted."""
+    ``apart_p_training``; 0 without a rival), and ``rival_equation``, the rival's fitted equation
+    where it is a pinned one (None otherwise: the ranking lists the free fits'); ``win_frequency``
+    of ``outcome`` over the bootstrap trials (NaN without trials) and the ``outcomes`` counted."""
     frequency = win_frequency(trial_outcomes, outcome) if trial_outcomes else float("nan")
     ranked = [int(c) for c in torch.argsort(rmse) if torch.isfinite(rmse[c])]
     runner = next((c for c in ranked if names[c] != names[best] and bool(is_effect[c])), None) if is_significant else best
@@ -118,11 +129,13 @@ def summary(rmse: torch.Tensor, names: list[str], best: int, is_significant: boo
     if is_significant:
         others = [c for c in ranked if names[c] != names[best] and c != 0 and bool(is_effect[c])]
         if pinned is not None:
-            evidence = evidence.extended(pinned[0])
-            labels = names + [f"{name} at its catalogue exponent" for name in pinned[1]]
-            others += [rmse.shape[0] + k for k, name in enumerate(pinned[1]) if name != names[best]]
+            evidence = evidence.extended(pinned.evidence)
+            labels = names + [f"{name} at its catalogue exponent" for name in pinned.names]
+            others += [rmse.shape[0] + k for k, name in enumerate(pinned.names) if name != names[best]]
     rival, found = apart(evidence, best, others, relative, generator)
+    held = rival is not None and rival >= rmse.shape[0]
     return {"margin": margin, "runner_up": names[runner] if runner is not None and is_significant else None,
             "rival": None if rival is None else labels[rival], **found,
+            "rival_equation": pinned.equations[rival - rmse.shape[0]] if held else None,
             "win_frequency": frequency, "bootstrap_trials": len(trial_outcomes),
             "outcomes": {o: trial_outcomes.count(o) for o in sorted(set(trial_outcomes))}}

@@ -73,6 +73,8 @@ def _equation(g, series: dict) -> list[str]:
             md += [f"- confidence: wins {100 * c['win_frequency']:.0f} % of {c['bootstrap_trials']} bootstrap trials "
                    f"(time blocks and noise); {margin(c)} (held-out RMSE); residual structure left "
                    f"{100 * g.structure_left:.0f} %"]
+        if c.get("rival_equation"):
+            md += [f"- rival, {c['rival']}: `{c['rival_equation']}`"]
     md += [f"- {reason}" for reason in g.checks.get("reasons", [])]
     md += [""] + _intervals(getattr(g, "intervals", None) or [])
     md += _where(g.where)

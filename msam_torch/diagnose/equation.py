@@ -93,7 +93,7 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
         effects = is_effect.nonzero().squeeze(-1)
         crossed[effects] = crossed_errors(weak, choices[effects], original.gamma[0, effects], step_options,
                                           options.bootstrap_steps, q, options.blocks, reach)
-        rivals = _pinned_rivals(spec, equation, hypotheses, weak, choices, starts, step_options, nominal,
+        rivals = _pinned_rivals(spec, extended, equation, hypotheses, weak, choices, starts, step_options, nominal,
                                 options.blocks, reach)
     evidence = confidence.Evidence(errors, crossed, weak.independence(reach))
     sure = confidence.summary(rmse, names, best, is_significant, outcome, trial_outcomes, is_effect, evidence,
@@ -133,12 +133,12 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     return EquationDiagnosis(gap, model, {"where": where["series"]})
 
 
-def _pinned_rivals(spec: ModelSpec, equation: Equation, hypotheses: list[Hypothesis], weak: WeakForm,
-                   choices: torch.Tensor, starts: torch.Tensor, step_options: StepOptions,
-                   nominal: torch.Tensor, folds: int, reach: int) -> tuple[confidence.Evidence, list[str]] | None:
-    """Out-of-sample evidence (:class:`.confidence.Evidence`) and entry names of the effect
-    hypotheses pinned at catalogue exponents (:func:`.naming.pinned`) whose fitted theta has the
-    sign their entry asks and whose held-out errors are finite; None without any."""
+def _pinned_rivals(spec: ModelSpec, extended: Equation, equation: Equation, hypotheses: list[Hypothesis],
+                   weak: WeakForm, choices: torch.Tensor, starts: torch.Tensor, step_options: StepOptions,
+                   nominal: torch.Tensor, folds: int, reach: int) -> confidence.Pinned | None:
+    """Out-of-sample evidence (:class:`.confidence.Evidence`), entry names and fitted equations of
+    the effect hypotheses pinned at catalogue exponents (:func:`.naming.pinned`) whose fitted theta
+    has the sign their entry asks and whose held-out errors are finite; None without any."""
     pins = pinned(spec, equation, hypotheses)
     if not pins:
         return None
@@ -155,7 +155,8 @@ def _pinned_rivals(spec: ModelSpec, equation: Equation, hypotheses: list[Hypothe
         return None
     crossed = crossed_errors(weak, choices[rows[keep]], fitted.gamma[0, keep], step_options, 0, q, folds, reach)
     evidence = confidence.Evidence(held_out[keep], crossed, weak.independence(reach))
-    return evidence, [pins[k].entry.name for k in keep]
+    return confidence.Pinned(evidence, [pins[k].entry.name for k in keep],
+                             [fitted_text(extended, equation, choices[rows], fitted, k, weak.scale) for k in keep])
 
 
 def _components(equation: Equation, hypotheses: list[Hypothesis], rmse: torch.Tensor) -> list[dict]:

@@ -120,6 +120,8 @@ class GapReport:
             lines.append(f"  starting: {g.start_equation}")
             lines.append(f"  theta re-fitted: {g.retuned_equation}")
             lines.append(f"  adapted:  {g.adapted_equation}")
+            if g.significant and g.verdict_kind == Verdict.INCONCLUSIVE and c.get("rival_equation"):
+                lines.append(f"  as good, {c['rival']}: {c['rival_equation']}")
             if g.where["flagged_fraction"] > 0:
                 r = g.where["regions"][0]
                 lines.append(f"  the {g.where.get('model', 'starting')} model fails where {r['rule']} "
