@@ -125,17 +125,17 @@ def summary(rmse: torch.Tensor, names: list[str], best: int, is_significant: boo
     runner = next((c for c in ranked if names[c] != names[best] and bool(is_effect[c])), None) if is_significant else best
     reference = rmse[best] if is_significant else rmse[0]
     margin = float((rmse[runner] - reference) / reference) if runner is not None and reference > 0 else float("inf")
-    others, labels = [], names
+    others, labels, equations = [], names, [None] * len(names)
     if is_significant:
         others = [c for c in ranked if names[c] != names[best] and c != 0 and bool(is_effect[c])]
         if pinned is not None:
             evidence = evidence.extended(pinned.evidence)
             labels = names + [f"{name} at its catalogue exponent" for name in pinned.names]
+            equations = equations + pinned.equations
             others += [rmse.shape[0] + k for k, name in enumerate(pinned.names) if name != names[best]]
     rival, found = apart(evidence, best, others, relative, generator)
-    held = rival is not None and rival >= rmse.shape[0]
     return {"margin": margin, "runner_up": names[runner] if runner is not None and is_significant else None,
             "rival": None if rival is None else labels[rival], **found,
-            "rival_equation": pinned.equations[rival - rmse.shape[0]] if held else None,
+            "rival_equation": None if rival is None else equations[rival],
             "win_frequency": frequency, "bootstrap_trials": len(trial_outcomes),
             "outcomes": {o: trial_outcomes.count(o) for o in sorted(set(trial_outcomes))}}
