@@ -17,6 +17,7 @@ from msam_torch.derivatives import BAND
 from msam_torch.diagnose import NOT_CATALOGUED, DiagnoseOptions, EquationGap, Verdict, diagnose
 from msam_torch.weak import HALF_AMPLITUDE
 from msam_torch.diagnose.confidence import resamples, told_apart
+from msam_torch.diagnose.structure import whiteness
 from msam_torch.diagnose.verdict import demoted, equation_verdict, free_run_reasons, overall
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
@@ -128,6 +129,63 @@ def test_no_gap_needs_a_residual_that_looks_like_noise():
     kind, reasons = equation_verdict(False, NOT_CATALOGUED, sure, 0.0, {"failed": ["autocorrelated"]},
                                      DiagnoseOptions())
     assert kind is Verdict.INCONCLUSIVE and reasons[0] == "autocorrelated" and "candidate" in reasons[1]
+
+
+def test_whiteness_fails_only_for_structure_relevant_by_the_null_rule():
+    """A residual with lag correlation 0.1 over 5,000 rows is autocorrelated beyond chance (Ljung-Box
+    p far below 0.01) but one lag predicts 1 % of its mean square: removing that cannot lower the
+    RMSE by the null rule's 5 %, so the check passes; at correlation 0.4 (16 %) it fails. An input
+    the residual follows at one lag fails the cross-correlation check only where that is relevant:
+    beside a target 1,000 times the residual, by the absolute margin (0.2 % of the target)."""
+    g = torch.Generator().manual_seed(0)
+    e, u = torch.randn(5001, generator=g, dtype=torch.float64), torch.randn(5000, generator=g, dtype=torch.float64)
+    moving = lambda phi: e[1:] + phi * e[:-1]  # lag-1 correlation phi / (1 + phi^2)
+    weak, strong = whiteness(moving(0.1), [], 0.01, 1.0, 0.05, 0.002), whiteness(moving(0.5), [], 0.01, 1.0, 0.05, 0.002)
+    assert weak["ljung_box_p"] < 1e-4 and weak["shares"]["autocorrelation"] == pytest.approx(0.01, abs=0.005)
+    assert weak["failed"] == [] and len(strong["failed"]) == 1 and "autocorrelated" in strong["failed"][0]
+    follows = e[1:] + 0.5 * torch.roll(u, 1)
+    rms = float(follows.square().mean().sqrt())
+    near, far = whiteness(follows, [u], 0.01, rms, 0.05, 0.002), whiteness(follows, [u], 0.01, 1000 * rms, 0.05, 0.002)
+    assert near["input_correlation_p"] < 1e-6 and far["input_correlation_p"] == near["input_correlation_p"]
+    assert any("correlated with the inputs" in r for r in near["failed"])
+    assert not any("correlated with the inputs" in r for r in far["failed"])
+
+
+def test_a_null_model_with_a_kinematic_identity_reads_no_gap():
+    """Two masses coupled by a spring (states d = x1 - x2, v1, v2; nothing withheld, parameters 10 %
+    off, 1 % noise on every signal): the identity ``d_dot = v1 - v2`` leaves a residual at the noise
+    floor that is correlated with the force beyond chance (p 0.004; 4 of 20 noise draws of such
+    records had a check below 0.01 in one of the three equations) but by no relevant amount; the
+    report reads "no significant gap" (before the null rule's margins applied to the residual
+    checks, "inconclusive")."""
+    t = np.arange(4000) * 0.01
+    rng = np.random.default_rng(403)
+    def record(seed, freqs, amplitude):
+        phases = np.random.default_rng(seed).uniform(0, 2 * np.pi, len(freqs))
+        wave = sum(np.sin(2 * np.pi * f * t + p) for f, p in zip(freqs, phases))
+        u = amplitude * wave / np.abs(wave).max()
+        force = lambda s: np.interp(s, t, u)
+        rhs = lambda s, x: [x[1] - x[2], (-50 * x[0] - 0.8 * x[1] + force(s)) / 1.0, (50 * x[0] - 1.2 * x[2]) / 2.0]
+        x = solve_ivp(rhs, (t[0], t[-1]), [0, 0, 0], t_eval=t, rtol=1e-9, atol=1e-11, method="DOP853", max_step=0.01).y
+        noisy = lambda v: v + 0.01 * v.std() * rng.standard_normal(v.size)
+        return pd.DataFrame({"t": t, "d": noisy(x[0]), "v1": noisy(x[1]), "v2": noisy(x[2]), "u": noisy(u)})
+    train, held_out = record(1, np.linspace(0.05, 2.5, 15), 5.0), record(2, [0.1, 0.4, 0.9, 1.3, 1.9], 4.0)
+    model = {"states": ["d", "v1", "v2"], "inputs": ["u"],
+             "parameters": {"m1": 1.1, "m2": 1.8, "k": 55.0, "c1": 0.72, "c2": 1.32},
+             "quantities": {"d": "position", "v1": "velocity", "v2": "velocity", "u": "force"},
+             "equations": [{"target": "d_dot", "components": [{"term": "v1", "theta": 1}, {"term": "v2", "theta": -1}],
+                            "adjustments": ["abs(v1)", "abs(v2)"]},
+                           {"target": "v1_dot", "components": [{"term": "d", "theta": "-k/m1"}, {"term": "v1", "theta": "-c1/m1"},
+                                                                {"term": "u", "theta": "1/m1", "adjustable": False}],
+                            "adjustments": ["abs(d)", "abs(v1)"]},
+                           {"target": "v2_dot", "components": [{"term": "d", "theta": "k/m2"}, {"term": "v2", "theta": "-c2/m2"}],
+                            "adjustments": ["abs(d)", "abs(v2)"]}]}
+    columns = {k: k for k in ("d", "v1", "v2", "u")}
+    report = diagnose({"model": model, "data": {"time": "t", "columns": columns}}, data=train, validation=held_out,
+                      options=DiagnoseOptions(bootstrap=0, free_run=False))
+    assert report.verdict_kind is Verdict.NO_GAP, report.reasons
+    identity = report.equations[0].checks
+    assert identity["input_correlation_p"] < 0.01 and identity["failed"] == [], identity
 
 
 def test_a_name_needs_to_predict_the_held_out_rows_better_than_another_name():

@@ -11,7 +11,7 @@ import torch
 from msam_torch.api import adapt, make_trainer
 from msam_torch.config import load_config
 from msam_torch.data import Dataset
-from msam_torch.diagnose import DiagnoseOptions, diagnose
+from msam_torch.diagnose import diagnose
 from msam_torch.errors import ConfigError
 from msam_torch.simulation import build_model, load_records, output_states
 from msam_torch.spec import ModelSpec
@@ -108,15 +108,18 @@ def test_a_dataset_a_mapping_and_a_path_give_the_record_of_the_config_file(tmp_p
 @pytest.mark.parametrize("power, verdict", [(1.0, "no significant gap"), (0.5, "inconclusive")])
 def test_no_gap_by_simulation_needs_a_residual_that_looks_like_noise(tmp_path, power, verdict):
     """Two tanks with linear (``power`` 1) or square-root outflow, the lower level measured with
-    1 % white noise, a linear starting model, the null rule made unreachable: on linear tanks the
-    re-fitted start's held-out free-run residual is white and the verdict is "no significant gap";
-    on square-root tanks it is autocorrelated, so the same rule gives "inconclusive" and says why."""
+    1 % white noise, a linear starting model whose only candidate adjustments (powers of the input)
+    cannot express the outflow law: on linear tanks the re-fitted start's held-out free-run residual
+    is white and the verdict is "no significant gap"; on square-root tanks it is autocorrelated, so
+    the verdict is "inconclusive" and says why."""
     torricelli_record(tmp_path / "tanks.csv", n=150, power=power)
     frame = pd.read_csv(tmp_path / "tanks.csv")
     frame["y"] += 0.01 * frame["y"].std() * np.random.default_rng(1).standard_normal(len(frame))
     train, held = frame[:100], frame[100:].assign(t=lambda f: f["t"] - f["t"].iloc[0])
-    report = diagnose(load_config(TANKS, SHORT), data=train, validation=held, base_dir=tmp_path,
-                      options=DiagnoseOptions(relative=1.0))
+    config = copy.deepcopy(TANKS)
+    for equation in config["model"]["equations"]:
+        equation["adjustments"] = ["abs(u)"]
+    report = diagnose(load_config(config, SHORT), data=train, validation=held, base_dir=tmp_path)
     checks = report.equations[1].checks
     assert report.verdict.split(";")[0] == verdict, report.reasons
     if power == 0.5:

@@ -151,8 +151,8 @@ def _remaining_gap(plan: Plan, eq: Equation, adapted: EquationResult, run: FreeR
 
 def _residual_checks(run: FreeRun, inputs, target_rms: float, options) -> dict:
     """The re-fitted start's free-run residual on every output, each sample (independent under
-    white measurement noise), checked for whiteness (:func:`.structure.whiteness`); a residual
-    within ``options.absolute`` of the outputs' RMS passes (``negligible``)."""
+    white measurement noise), checked for whiteness (:func:`.structure.whiteness`, structure relevant
+    against the outputs' RMS); a residual within ``options.absolute`` of it passes (``negligible``)."""
     residual = run.record.outputs - run.simulated[1]  # (M, N)
     out = {"ljung_box_p": None, "input_correlation_p": None, "failed": []}
     if not bool(torch.isfinite(residual).all()):
@@ -160,7 +160,7 @@ def _residual_checks(run: FreeRun, inputs, target_rms: float, options) -> dict:
     if float(residual.square().mean().sqrt()) <= options.absolute * target_rms:
         return {**out, "negligible": True}
     u = list(_inputs(run, inputs).values())
-    found = [whiteness(r, u, options.check_level) for r in residual]
+    found = [whiteness(r, u, options.check_level, target_rms, options.relative, options.absolute) for r in residual]
     p = lambda key: min((f[key] for f in found if f[key] is not None), default=None)
     return {"ljung_box_p": p("ljung_box_p"), "input_correlation_p": p("input_correlation_p"),
             "failed": list(dict.fromkeys(reason for f in found for reason in f["failed"]))}

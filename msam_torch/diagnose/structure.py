@@ -3,7 +3,9 @@ residual a k-nearest-neighbour regression on the equation's signals predicts, be
 the effect (a verdict check: an effect that leaves most of the structure does not explain the gap);
 and the checks "no significant gap" needs (:func:`residual_checks`): the re-fitted start's
 residual on non-overlapping test functions is white (Ljung-Box), uncorrelated with the inputs at
-any lag, and holds little nearest-neighbour structure."""
+any lag, and holds little nearest-neighbour structure. A whiteness test that fails counts only for
+structure relevant in size by the null rule (:func:`relevant`): on a long record a residual at the
+noise floor can be correlated beyond chance with a share of its mean square no effect could remove."""
 from __future__ import annotations
 
 import math
@@ -13,6 +15,7 @@ from scipy.stats import norm
 from statsmodels.stats.diagnostic import acorr_ljungbox
 
 from ..spec import Equation
+from .confidence import significant
 from .hypotheses import Fitted, predict_rows
 from ..weak import TestFunctions
 from .weak import WeakForm
@@ -58,15 +61,18 @@ def structure_left(equation: Equation, weak: WeakForm, choices: torch.Tensor, or
 
 
 def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, original: Fitted, inputs: list[str],
-                    level: float, largest_structure: float, negligible: float, reach: int = 0) -> dict:
+                    level: float, largest_structure: float, negligible: float, relative: float,
+                    reach: int = 0) -> dict:
     """Whether the re-fitted start's held-out residual looks like noise: on rows of test functions
     apart by their length plus ``reach`` samples (the window of a derivative estimate; then the rows
     are independent under white measurement noise), the Ljung-Box p-value of its
     autocorrelation and the Bonferroni p-value of its largest cross-correlation with the inputs'
-    window averages (lags up to :data:`LAGS`), each at least ``level``, and the share of its mean
-    square a nearest-neighbour regression predicts at most ``largest_structure``. A residual
-    within ``negligible`` of the held-out target's RMS passes, and so (``unchecked``) does one with
-    fewer than :data:`FEWEST_ROWS` independent rows. ``failed`` names the checks missed."""
+    window averages (lags up to :data:`LAGS`), each at least ``level`` or the structure they find
+    not relevant (:func:`relevant`, the null rule's ``relative`` and ``negligible`` margins), and
+    the share of its mean square a nearest-neighbour regression predicts at most
+    ``largest_structure``. A residual within ``negligible`` of the held-out target's RMS passes, and
+    so (``unchecked``) does one with fewer than :data:`FEWEST_ROWS` independent rows. ``failed``
+    names the checks missed."""
     residual = (weak.val_data.y[0] - predict_rows(weak.val_data, choices, original)[0, 0])
     rows = torch.nonzero(weak.val_rows).squeeze(-1)
     rows = rows[::weak.apart(reach)]
@@ -77,7 +83,7 @@ def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, o
     if rows.numel() < FEWEST_ROWS:  # too short a record to tell: noted, not failed
         return {**out, "unchecked": f"only {rows.numel()} independent held-out rows"}
     u = [weak.val_tests.average(weak.val_signals[name])[rows] for name in inputs]
-    out.update(whiteness(residual[rows], u, level))
+    out.update(whiteness(residual[rows], u, level, weak.target_rms, relative, negligible))
     explained, total = _explained(equation, weak, choices, original, (0,))[0]
     out["structure_share"] = explained / total if total > 0 else 0.0
     if out["structure_share"] > largest_structure:
@@ -86,18 +92,31 @@ def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, o
     return out
 
 
-def whiteness(residual: torch.Tensor, inputs: list[torch.Tensor], level: float) -> dict:
+def relevant(share: float, rms: float, target_rms: float, relative: float, absolute: float) -> bool:
+    """Whether removing ``share`` of a residual's mean square (RMS ``rms``) would lower its RMS by the
+    null rule's margins (:func:`.confidence.significant`): structure a test finds beyond chance that
+    no effect could remove by a relevant amount is no gap."""
+    rms = torch.tensor(rms, dtype=torch.float64)
+    return bool(significant(rms * math.sqrt(max(0.0, 1.0 - share)), rms, target_rms, relative, absolute))
+
+
+def whiteness(residual: torch.Tensor, inputs: list[torch.Tensor], level: float, target_rms: float,
+              relative: float, absolute: float) -> dict:
     """Whether independent samples of the re-fitted start's residual look like white noise: the Ljung-Box
     p-value of its autocorrelation and the Bonferroni p-value of its largest cross-correlation
-    with ``inputs`` (on the same samples) at lags up to :data:`LAGS`, each at least ``level``;
-    ``failed`` names the checks missed."""
+    with ``inputs`` (on the same samples) at lags up to :data:`LAGS`, each at least ``level``; a
+    test below ``level`` fails only where the largest squared correlation it rests on (the share of
+    the residual's mean square one lagged copy of the residual or of an input predicts) is
+    :func:`relevant` against ``target_rms``. ``failed`` names the checks missed."""
     r = residual.double().cpu()
     n = r.numel()
     lags = max(1, min(LAGS, n // 5))
     out = {"ljung_box_p": float(acorr_ljungbox(r.numpy(), lags=[lags])["lb_pvalue"].iloc[0]),
            "input_correlation_p": None, "failed": []}
     z = (r - r.mean()) / r.std().clamp_min(torch.finfo(r.dtype).tiny)
-    largest, tests = 0.0, 0
+    correlation = lambda a, b: float((a * b).mean())
+    autocorrelation = max(correlation(z[lag:], z[:n - lag]) ** 2 for lag in range(1, lags + 1))
+    largest, cross, tests = 0.0, 0.0, 0
     for u in inputs:
         u = u.double().cpu()
         if float(u.std()) == 0.0:
@@ -105,12 +124,17 @@ def whiteness(residual: torch.Tensor, inputs: list[torch.Tensor], level: float) 
         u = (u - u.mean()) / u.std()
         for lag in range(-lags, lags + 1):
             a, b = (z[lag:], u[:n - lag]) if lag >= 0 else (z[:n + lag], u[-lag:])
-            largest = max(largest, abs(float((a * b).mean())) * math.sqrt(a.numel()))
+            largest = max(largest, abs(correlation(a, b)) * math.sqrt(a.numel()))
+            cross = max(cross, correlation(a, b) ** 2)
             tests += 1
     if tests:
         out["input_correlation_p"] = float(min(1.0, tests * 2 * norm.sf(largest)))
-    if out["ljung_box_p"] < level:
-        out["failed"].append(f"the re-fitted start's residual is autocorrelated (Ljung-Box p = {out['ljung_box_p']:.2g})")
-    if out["input_correlation_p"] is not None and out["input_correlation_p"] < level:
-        out["failed"].append(f"the re-fitted start's residual is correlated with the inputs (p = {out['input_correlation_p']:.2g})")
+    out["shares"] = {"autocorrelation": autocorrelation, "input_correlation": cross if tests else None}
+    matters = lambda share: relevant(share, float(r.square().mean().sqrt()), target_rms, relative, absolute)
+    if out["ljung_box_p"] < level and matters(autocorrelation):
+        out["failed"].append(f"the re-fitted start's residual is autocorrelated (Ljung-Box p = {out['ljung_box_p']:.2g}; "
+                             f"one lag predicts {100 * autocorrelation:.0f} % of its mean square)")
+    if out["input_correlation_p"] is not None and out["input_correlation_p"] < level and matters(cross):
+        out["failed"].append(f"the re-fitted start's residual is correlated with the inputs (p = {out['input_correlation_p']:.2g}; "
+                             f"one lagged input predicts {100 * cross:.0f} % of its mean square)")
     return out
