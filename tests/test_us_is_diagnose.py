@@ -13,7 +13,7 @@ def test_us_is_diagnosis_prints_validation_sum_abs_error():
     held = report.measures["one_step"]["held_out"]["y_dot"]
     printed = str(report)
     assert printed.startswith(f"verdict: {report.verdict}")
-    assert (f"one-step sum|eps| of y_dot (held_out): start {held['start']['sum_abs_error']:.4g}, theta re-fitted "
+    assert (f"one-step sum|eps| of y_dot against its estimate (held_out): start {held['start']['sum_abs_error']:.4g}, theta re-fitted "
             f"{held['retuned']['sum_abs_error']:.4g}, adapted {held['adapted']['sum_abs_error']:.4g}") in printed
     gap = report.equations[0]
     assert gap.start_equation == "y_dot = 0.1 (c + i + g) - 0.1 y"  # a sum is one factor

@@ -122,7 +122,7 @@ class GapReport:
             lines.append(f"  adapted:  {g.adapted_equation}")
             if g.significant and g.verdict_kind == Verdict.INCONCLUSIVE and c.get("rival_equation"):
                 lines.append(f"  as good, {c['rival']}: {c['rival_equation']}")
-            if g.where["flagged_fraction"] > 0:
+            if g.where["flagged_fraction"] > 0 and g.verdict_kind != Verdict.NO_GAP:  # no gap: nothing to locate
                 r = g.where["regions"][0]
                 lines.append(f"  the {g.where.get('model', 'starting')} model fails where {r['rule']} "
                              f"({100 * r['share']:.0f} % of the record; a separate fit there removes "
@@ -132,7 +132,8 @@ class GapReport:
                     lines.append(f"  remaining gap in time windows {windows}: no candidate adjustment expresses it")
         for label, targets in self.measures.get("one_step", {}).items():
             for target, m in targets.items():
-                lines.append(f"one-step sum|eps| of {target} ({label}): start {m['start']['sum_abs_error']:.4g}, "
+                lines.append(f"one-step sum|eps| of {target} against its estimate ({label}): "
+                             f"start {m['start']['sum_abs_error']:.4g}, "
                              f"theta re-fitted {m['retuned']['sum_abs_error']:.4g}, "
                              f"adapted {m['adapted']['sum_abs_error']:.4g}")
         for label, entry in self.measures.get("free_run", {}).items():
