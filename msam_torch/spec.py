@@ -81,6 +81,7 @@ class ModelSpec:
     parameters: Mapping[str, float]
     equations: tuple[Equation, ...]
     quantities: Mapping[str, str] = field(default_factory=dict, kw_only=True)  # signal -> declared quantity
+    units: Mapping[str, str] = field(default_factory=dict, kw_only=True)  # signal -> declared unit
     effects: tuple[EffectConfig, ...] = field(default=(), kw_only=True)  # the config's own catalogue entries
 
     @classmethod
@@ -140,14 +141,17 @@ class ModelSpec:
                 for i, c in enumerate(eq.components)
             )
             if not any(c.adjustable for c in components):
-                raise ConfigError(f"{key}.components", "no component is adjustable")
+                raise ConfigError(f"{key}.components", "no component is adjustable: mark at least one adjustable "
+                                  "(an identity such as d_dot = v1 - v2 is then checked like any equation and "
+                                  "reads 'no significant gap' where it holds)")
             equations.append(Equation(eq.target, components, adjustments))
         for name in config.quantities:
             if name not in signals - {"t"}:
                 raise ConfigError(f"model.quantities.{name}", f"{name!r} is not a state, an input or a derivative of one")
         quantities = {name: q.quantity for name, q in config.quantities.items()}
+        units = {name: q.unit for name, q in config.quantities.items() if q.unit}
         return cls(tuple(config.states), tuple(config.inputs), dict(config.parameters), tuple(equations),
-                   quantities=quantities, effects=tuple(config.effects))
+                   quantities=quantities, units=units, effects=tuple(config.effects))
 
     def theta(self, equation: Equation, parameters: Mapping[str, float] | None = None) -> torch.Tensor:
         """Nominal theta of every component of ``equation`` (float64, shape (Q,))."""

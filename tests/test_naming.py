@@ -104,6 +104,22 @@ def test_named_from_declared_quantities_and_never_wrong_without(case, name, tota
     assert bare.verdict_kind is not Verdict.EXPLAINED and bare.effect in (None, "power law, no catalogued effect")
 
 
+def test_temperatures_in_celsius_get_no_radiation_name_and_a_note_to_give_kelvin():
+    """The heated body recorded in degrees Celsius, declared so: a power of a Celsius temperature is
+    no power of the absolute one, so the gap gets no catalogue name, and its naming says that the
+    temperature laws read kelvin (the same record in kelvin is named radiation, test above)."""
+    model, frames, quantities = heated_body()
+    frames = [f.assign(T=f["T"] - 273.15, Ta=f["Ta"] - 273.15) for f in frames]
+    declared = {**{k: {"quantity": v} for k, v in quantities.items()},
+                "T": {"quantity": "temperature", "unit": "degC"}, "Ta": {"quantity": "temperature", "unit": "degC"}}
+    gap = run(model, frames, declared)
+    assert gap.significant and gap.effect != "radiation", gap.naming
+    assert "T is in degC, whose zero is not absolute" in gap.naming["text"] and "kelvin" in gap.naming["text"]
+    spec = ModelSpec.from_config(load_config({"model": {**model, "quantities": declared}, "data": {"time": "t"}}).model)
+    roles = catalogue.Roles.of_equation(spec, spec.equations[0])
+    assert (roles.offset_scale("T"), roles.offset_scale("u")) == ("degC", None)
+
+
 def test_an_exchange_is_named_where_its_reference_drifts():
     """A body a few tens of kelvin above an ambient that drifts by +-5 K: the ambient's own
     radiation ``Ta^4`` then moves by about as much as the curvature of ``T^4`` that tells the

@@ -12,7 +12,7 @@ says so. Names never come from variable names.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache
 from importlib.resources import files
 
@@ -29,6 +29,9 @@ TOLERANCE = 0.2  # the catalogue's resolution: the least half-width of an expone
 RATE_OF = {"position": "velocity", "velocity": "acceleration", "angle": "angular_velocity",
            "angular_velocity": "angular_acceleration", "charge": "current", "volume": "flow"}
 ASSUMED = {0: "position", 1: "velocity"}  # second-order equations with nothing declared
+# temperature scales whose zero is not absolute zero (a declared unit, lower case, spaces dropped)
+OFFSET_SCALES = {"c", "°c", "degc", "celsius", "degreesc", "degreecelsius", "degreescelsius",
+                 "f", "°f", "degf", "fahrenheit", "degreesf", "degreefahrenheit", "degreesfahrenheit"}
 
 
 class _CatalogueFile(BaseModel):
@@ -59,9 +62,17 @@ class Roles:
 
     quantities: dict
     assumed: dict
+    units: dict = field(default_factory=dict)  # declared units
 
     def of(self, signal: str) -> str | None:
         return self.quantities.get(signal)
+
+    def offset_scale(self, signal: str | None) -> str | None:
+        """The declared unit of a temperature ``signal`` whose zero is not absolute (degC, degF):
+        a power of it is no power of the temperature that radiation and other laws read."""
+        unit = self.units.get(signal) if signal is not None else None
+        return unit if unit is not None and unit.lower().replace(" ", "") in OFFSET_SCALES \
+            and self.of(signal) == "temperature" else None
 
     def exchanging(self, equation: Equation, nominal) -> dict[int, tuple[str, ...]]:
         """Adjustable components that are a signal exchanging with another signal of the same
@@ -92,7 +103,7 @@ class Roles:
         assumed = {}
         if order == 2 and not any(s in declared for s in equation.signals):
             assumed = {derivative_name(base, k): q for k, q in ASSUMED.items()}
-        return cls({**known, **assumed}, assumed)
+        return cls({**known, **assumed}, assumed, dict(spec.units) if spec is not None else {})
 
 
 def power_in(term: Expression, signal: str) -> float | None:

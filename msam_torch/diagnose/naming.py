@@ -113,10 +113,16 @@ def _details(entry, reading: catalogue.Reading, roles: catalogue.Roles, total: f
         text = f"power law, {measured}: not an effect (exponent out of range or unstable under the bootstrap)"
     elif len(consistent) > 1:
         text = f"power law, {measured} (consistent with {' and '.join(consistent)}: not told apart)"
+    elif reading.signal is None:
+        text = f"power law, {measured} (no catalogued effect: the catalogue reads powers of one signal's magnitude, abs(s))"
     elif None in (reading.acts_on, reading.term, reading.depends_on):
         text = f"power law, {measured} (no catalogued effect: quantities not declared, see model.quantities)"
     else:
         text = f"power law, {measured} (no catalogued effect)"
+    unit = roles.offset_scale(reading.signal)
+    if entry is None and unit is not None:
+        text += (f"; {reading.signal} is in {unit}, whose zero is not absolute: temperature laws (radiation, "
+                 "T^4) read absolute temperature, so give it in kelvin to test them")
     return {"effect": None if entry is None else entry.name, "text": text, "total_exponent": total,
             "half_width": half, "on": reading.signal,
             "catalogue_exponent": None if entry is None else catalogue.catalogue_exponent(entry),
