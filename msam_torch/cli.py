@@ -20,7 +20,7 @@ from pathlib import Path
 
 from . import __version__
 from .allocator import keep_freed_memory
-from .errors import Interrupted, MSAMError, NoInformation
+from .errors import ConfigError, Interrupted, MSAMError, NoInformation
 from .progress import LOGGER, logging_to, step
 
 EXIT_BUG = 1
@@ -255,7 +255,7 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's final flush
         return status
     except MSAMError as exc:
-        return _report(exc)
+        return _report(_located(exc, getattr(args, "config", None)))
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
@@ -346,6 +346,16 @@ def _dispatch(args) -> int:
             if created and not isinstance(exc, (NoInformation, Interrupted, BrokenPipeError)):
                 shutil.rmtree(out, ignore_errors=True)
             raise
+
+
+def _located(exc: MSAMError, config: str | None) -> MSAMError:
+    """A config error found past validation (an expression, a target, a term) with the config file
+    it is in, where the message does not name one."""
+    if config is None or not isinstance(exc, ConfigError) or "(in " in str(exc) or not exc.key.startswith("model."):
+        return exc
+    located = ConfigError("", f"{exc} (in {config})")
+    located.key = exc.key
+    return located
 
 
 def _report(exc: MSAMError) -> int:

@@ -8,6 +8,7 @@ Values are data: YAML is read with a ``yaml.SafeLoader`` and no string is ever e
 """
 from __future__ import annotations
 
+import difflib
 import math
 import re
 from pathlib import Path
@@ -317,7 +318,18 @@ def validate(schema: type[BaseModel], raw: dict, origin: str):
         error = next((e for e in errors if e["type"] == "value_error"), errors[0])
         loc = [p for p in error["loc"] if not (isinstance(p, str) and _BRANCH.match(p))]
         key = ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in loc).replace(".[", "[")
-        raise ConfigError(key, f"{error['msg'].removeprefix('Value error, ')} (in {origin})") from None
+        raise ConfigError(key, f"{error['msg'].removeprefix('Value error, ')}{_misspelt(error, errors)} (in {origin})") from None
+
+
+def _misspelt(error: dict, errors: list[dict]) -> str:
+    """For a missing key beside an unknown one of a close spelling (or the reverse): which one."""
+    other = {"missing": "extra_forbidden", "extra_forbidden": "missing"}.get(error["type"])
+    names = [str(e["loc"][-1]) for e in errors if e["type"] == other and e["loc"][:-1] == error["loc"][:-1]]
+    close = difflib.get_close_matches(str(error["loc"][-1]), names, n=1)
+    if not close:
+        return ""
+    missing, given = (error["loc"][-1], close[0]) if error["type"] == "missing" else (close[0], error["loc"][-1])
+    return f" ({given!r} is given: a misspelling of {missing!r}?)"
 
 
 def load_config(source: Union[str, Path, dict], overrides: list[str] = ()) -> Config:

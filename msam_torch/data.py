@@ -300,12 +300,12 @@ def check_time(frame: pd.DataFrame, t: np.ndarray, measured: dict, source: str, 
     where = "time column " + repr(config.time) if config.time else "time"
     duplicated = np.flatnonzero(steps == 0)
     if duplicated.size:
-        raise DataError(f"{source}: {where} has duplicated values ({t[duplicated[0]]!r}) at "
+        raise DataError(f"{source}: {where} has duplicated values ({float(t[duplicated[0]]):g}) at "
                         f"{_rows(frame, duplicated + 1)}; remove or average the duplicates")
     backwards = np.flatnonzero(steps < 0)
     if backwards.size:
         raise DataError(f"{source}: {where} is not increasing at {_rows(frame, backwards + 1)} "
-                        f"({t[backwards[0]]!r} then {t[backwards[0] + 1]!r}); sort the data by time")
+                        f"({float(t[backwards[0]]):g} then {float(t[backwards[0] + 1]):g}); sort the data by time")
     median = float(np.median(steps))
     irregular = np.flatnonzero(np.abs(steps - median) > REGULAR * median)
     if not irregular.size or not estimated:

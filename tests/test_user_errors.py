@@ -201,7 +201,7 @@ CORPUS: dict[str, dict[str, tuple]] = {
         "conditional": (theta("c if m else 1"), [], 2, [THETA, "IfExp"]),
         "boolean operator": (theta("c and m"), [], 2, [THETA, "BoolOp"]),
         "list literal": (theta("[c, m]"), [], 2, [THETA, "List"]),
-        "unknown name": (theta("q/m"), [], 2, [THETA, "unknown name 'q'"]),
+        "unknown name": (theta("q/m"), [], 2, [THETA, "unknown name 'q'", "config.yaml)"]),
         "unknown function": (theta("floor(c)"), [], 2, [THETA, "function not allowed"]),
         "two arguments": (theta("sqrt(c, m)"), [], 2, [THETA, "exactly one argument"]),
         "keyword argument": (theta("sqrt(x=c)"), [], 2, [THETA, "exactly one argument"]),
@@ -243,6 +243,9 @@ CORPUS: dict[str, dict[str, tuple]] = {
         "unknown range key": (override("data.train.begin=0"), [], 2, ["data.train.begin"]),
         "unknown component key": (lambda p: bundled(p, component(thetta=1)), [], 2,
                                   ["model.equations[0].components[0].thetta"]),
+        "misspelt required key": (lambda p: bundled(p, lambda r: r["model"]["equations"][0].__setitem__(
+            "adjustmens", r["model"]["equations"][0].pop("adjustments"))), [], 2,
+            ["model.equations[0].adjustments", "'adjustmens' is given: a misspelling of 'adjustments'?"]),
         "unknown initial_guess state": (override("adaptation.simulation.initial_guess.zz=1"), [], 2,
                                         ["adaptation.simulation.initial_guess.zz", "not a state"]),
     },
