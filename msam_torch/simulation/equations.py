@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import Mapping, Sequence
 
+import numpy as np
 import torch
 
 from ..errors import MSAMError
@@ -64,7 +65,7 @@ class EquationModel:
         """The modelled target derivative (B, ...) for signal values broadcastable to (B, ...)."""
         shapes = [v.shape for v in values.values() if torch.is_tensor(v)]
         like = next(v for v in values.values() if torch.is_tensor(v))
-        shape = (self.choice.shape[0],) + torch.broadcast_shapes(*shapes)[1:]
+        shape = (self.choice.shape[0],) + np.broadcast_shapes(*shapes)[1:]  # torch's imports sympy: 1 s
         rates = self._alone.equation_rates(self.parameters(self._alone), like.dtype, like.device)
         return rates(values, shape)[..., 0]
 
