@@ -77,7 +77,7 @@ def score(report, truth: dict) -> dict:
         others_quiet = all(not g["significant"] for t, g in gaps.items() if t not in truth["targets"])
         out["top1"] = others_quiet and all(effect_matches(gaps[t], truth) for t in truth["targets"])
     elif kind == "null":
-        out["no_gap"] = not any(g["significant"] for g in gaps.values())
+        out["no_gap"] = r["verdict"] == Verdict.NO_GAP.text()  # the verdict, not only no significant effect
         out["theta_ok"] = theta_within(gaps, truth["theta"], THETA_TOLERANCE)
     elif kind == "several":  # both found among the effects added in turn, in either order
         steps = r.get("in_turn", {}).get("effects", [])
