@@ -3,9 +3,10 @@ residual a k-nearest-neighbour regression on the equation's signals predicts, be
 the effect (a verdict check: an effect that leaves most of the structure does not explain the gap);
 and the checks "no significant gap" needs (:func:`residual_checks`): the re-fitted start's
 residual on non-overlapping test functions is white (Ljung-Box), uncorrelated with the inputs at
-any lag, and holds little nearest-neighbour structure. A whiteness test that fails counts only for
-structure relevant in size by the null rule (:func:`relevant`): on a long record a residual at the
-noise floor can be correlated beyond chance with a share of its mean square no effect could remove."""
+any lag, and holds little nearest-neighbour structure. A check that fails counts only for
+structure relevant in size by the null rule (:func:`relevant`): a residual at the noise floor can
+hold structure (correlated beyond chance on a long record, or the quadrature error of noise-free
+data) whose removal would not lower its RMS by what an effect must."""
 from __future__ import annotations
 
 import math
@@ -67,10 +68,10 @@ def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, o
     apart by their length plus ``reach`` samples (the window of a derivative estimate; then the rows
     are independent under white measurement noise), the Ljung-Box p-value of its
     autocorrelation and the Bonferroni p-value of its largest cross-correlation with the inputs'
-    window averages (lags up to :data:`LAGS`), each at least ``level`` or the structure they find
-    not relevant (:func:`relevant`, the null rule's ``relative`` and ``negligible`` margins), and
-    the share of its mean square a nearest-neighbour regression predicts at most
-    ``largest_structure``. A residual within ``negligible`` of the held-out target's RMS passes, and
+    window averages (lags up to :data:`LAGS`), each at least ``level``, and the share of its mean
+    square a nearest-neighbour regression predicts at most ``largest_structure``, or the structure
+    found not relevant (:func:`relevant`, the null rule's ``relative`` and ``negligible`` margins).
+    A residual within ``negligible`` of the held-out target's RMS passes, and
     so (``unchecked``) does one with fewer than :data:`FEWEST_ROWS` independent rows. ``failed``
     names the checks missed."""
     residual = (weak.val_data.y[0] - predict_rows(weak.val_data, choices, original)[0, 0])
@@ -78,7 +79,8 @@ def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, o
     rows = rows[::weak.apart(reach)]
     out = {"independent_rows": int(rows.numel()), "ljung_box_p": None, "input_correlation_p": None,
            "structure_share": None, "failed": []}
-    if float(residual[weak.val_rows].square().mean().sqrt()) <= negligible * weak.target_rms:
+    rms = float(residual[weak.val_rows].square().mean().sqrt())
+    if rms <= negligible * weak.target_rms:
         return {**out, "negligible": True}
     if rows.numel() < FEWEST_ROWS:  # too short a record to tell: noted, not failed
         return {**out, "unchecked": f"only {rows.numel()} independent held-out rows"}
@@ -86,7 +88,8 @@ def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, o
     out.update(whiteness(residual[rows], u, level, weak.target_rms, relative, negligible))
     explained, total = _explained(equation, weak, choices, original, (0,))[0]
     out["structure_share"] = explained / total if total > 0 else 0.0
-    if out["structure_share"] > largest_structure:
+    if out["structure_share"] > largest_structure and relevant(out["structure_share"], rms, weak.target_rms,
+                                                               relative, negligible):
         out["failed"].append(f"the signals predict {100 * out['structure_share']:.0f} % of the re-fitted start's "
                              "residual (nearest neighbours)")
     return out
