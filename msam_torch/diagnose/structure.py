@@ -127,8 +127,8 @@ def whiteness(residual: torch.Tensor, inputs: list[torch.Tensor], level: float, 
         u = (u - u.mean()) / u.std()
         for lag in range(-lags, lags + 1):
             a, b = (z[lag:], u[:n - lag]) if lag >= 0 else (z[:n + lag], u[-lag:])
-            largest = max(largest, abs(correlation(a, b)) * math.sqrt(a.numel()))
-            cross = max(cross, correlation(a, b) ** 2)
+            c = correlation(a, b)
+            largest, cross = max(largest, abs(c) * math.sqrt(a.numel())), max(cross, c**2)
             tests += 1
     if tests:
         out["input_correlation_p"] = float(min(1.0, tests * 2 * norm.sf(largest)))
