@@ -30,9 +30,10 @@ CASE = "msd_coulomb"
 NOISE = 0.01
 
 
-def records(length: float, faster: int, case: str = CASE) -> tuple:
+def records(length: float, faster: int, case: str = CASE, noise: float = NOISE) -> tuple:
     """Training and held-out datasets of a withheld-effect ``case``, ``length`` times the bundled
-    record's duration, sampled ``faster`` times faster."""
+    record's duration, sampled ``faster`` times faster, ``noise`` (a share of each measured state's
+    standard deviation) added."""
     w = WITHHELD[case]
     spec = ModelSpec.from_config(load_config({"model": w.model}).model)
     rng = np.random.default_rng(0)
@@ -41,7 +42,7 @@ def records(length: float, faster: int, case: str = CASE) -> tuple:
         base = SYSTEMS[name]
         system = replace(base, samples=int(round((base.samples - 1) * length * faster)) + 1, t_end=base.t_end * length)
         sim = {k: v.numpy() for k, v in measure(system, rtol=1e-8, atol=1e-10).items()}
-        measured = {k: sim[k] + (0 if k in system.inputs else NOISE * sim[k].std() * rng.standard_normal(sim[k].size))
+        measured = {k: sim[k] + (0 if k in system.inputs else noise * sim[k].std() * rng.standard_normal(sim[k].size))
                     for k in system.measured}
         out.append(build_dataset(sim["t"], measured, DataConfig(derivatives="savgol"), spec, {"source": name},
                                  torch.float64))

@@ -77,17 +77,17 @@ def load_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str = ".
         return simulated_dataset(config, spec, dtype, estimator), None
     base_dir = Path(base_dir)
     table, source = (as_frame(frame, "data frame") if frame is not None
-                     else read_frame(base_dir / config.file, base_dir))
+                     else read_frame(base_dir / config.file, base_dir, "data.file"))
     train = measured_dataset(select_range(table, config.train, config, source, "data.train"),
                              config, spec, f"{source} (data.train)", dtype, estimator)
-    validation, every = None, train.info.get("decimated", {}).get("factor", 1)  # held out at the training rate
+    validation, period = None, train.info["sample_time"]  # held out at the training record's (decimated) rate
     if validation_frame is not None or config.validation_file is not None:
         held, held_source = (as_frame(validation_frame, "validation frame") if validation_frame is not None
-                             else read_frame(base_dir / config.validation_file, base_dir))
-        validation = measured_dataset(held, config, spec, held_source, dtype, estimator, every)
+                             else read_frame(base_dir / config.validation_file, base_dir, "data.validation_file"))
+        validation = measured_dataset(held, config, spec, held_source, dtype, estimator, period)
     elif config.validation is not None:
         part = select_range(table, config.validation, config, source, "data.validation")
-        validation = measured_dataset(part, config, spec, f"{source} (data.validation)", dtype, estimator, every)
+        validation = measured_dataset(part, config, spec, f"{source} (data.validation)", dtype, estimator, period)
     return train, validation
 
 
@@ -148,13 +148,13 @@ def as_frame(data: Table, source: str) -> tuple[pd.DataFrame, str]:
     return frame, source
 
 
-def read_frame(path: Path, folder: Path | None = None) -> tuple[pd.DataFrame, str]:
-    """Read a CSV or Parquet file. CSV rows are indexed by their line in the file; unnamed
+def read_frame(path: Path, folder: Path | None = None, key: str | None = None) -> tuple[pd.DataFrame, str]:
+    """Read a CSV or Parquet file (named by the config's ``key``). CSV rows are indexed by their line in the file; unnamed
     empty columns (trailing commas) are dropped. Error messages list the file's column names only
     when it lies inside ``folder`` (the config's): nothing of a file elsewhere is ever echoed."""
     source = str(path)
     if not path.is_file():
-        raise DataError(f"{source}: no such data file")
+        raise DataError(f"{source}: no such data file" + (f" ({key})" if key else ""))
     parquet = path.suffix.lower() in (".parquet", ".pq")
     try:
         if parquet:
@@ -246,10 +246,11 @@ def select_range(frame: pd.DataFrame, rng: RangeConfig, config: DataConfig, sour
 
 
 def measured_dataset(frame: pd.DataFrame, config: DataConfig, spec: ModelSpec, source: str, dtype,
-                     estimator: DerivativeEstimator | None = None, every: int | None = None) -> Dataset:
+                     estimator: DerivativeEstimator | None = None, period: float | None = None) -> Dataset:
     """Signals of ``spec`` from a table: time checks, column mapping, resampling, decimation of
-    an oversampled record by ``every`` (default: chosen from its band, :func:`decimate_oversampled`),
-    estimation (``estimator``: default :func:`derivative_estimator` of ``config``)."""
+    an oversampled record (to about the sample time ``period``, default: chosen from its band,
+    :func:`decimate_oversampled`), estimation (``estimator``: default :func:`derivative_estimator`
+    of ``config``)."""
     estimator = derivative_estimator(config, True) if estimator is None else estimator
     if len(frame) < 2:
         raise DataError(f"{source}: {len(frame)} sample{'s' if len(frame) != 1 else ''}; need at least 2")
@@ -263,7 +264,7 @@ def measured_dataset(frame: pd.DataFrame, config: DataConfig, spec: ModelSpec, s
         measured[signal] = column(frame, name, source, f"data.columns.{signal}")
     info = {"source": source}
     estimated = not isinstance(estimator, Exact)
-    t, measured, info = decimate_oversampled(*check_time(frame, t, measured, source, config, estimated, info), every)
+    t, measured, info = decimate_oversampled(*check_time(frame, t, measured, source, config, estimated, info), period)
     try:
         return build_dataset(t, measured, config, spec, info, dtype, source, estimator)
     except DataError as error:
@@ -273,16 +274,19 @@ def measured_dataset(frame: pd.DataFrame, config: DataConfig, spec: ModelSpec, s
 
 
 def decimate_oversampled(t: np.ndarray, measured: dict, info: dict,
-                         every: int | None = None) -> tuple[np.ndarray, dict, dict]:
+                         period: float | None = None) -> tuple[np.ndarray, dict, dict]:
     """A record on a uniform grid sampled far faster than its band, low-pass filtered and
-    decimated by ``every`` (default: :func:`~msam_torch.bandwidth.oversampling`'s factor) before
-    anything else reads it; ``info['decimated']`` records how. Irregular grids stay as they are."""
+    decimated (by :func:`~msam_torch.bandwidth.oversampling`'s factor, or to about the sample time
+    ``period``: a held-out record at the training record's rate, whatever its own) before anything
+    else reads it; ``info['decimated']`` records how. Irregular grids stay as they are."""
     dt = info["sample_time"]
     if t.size < 3 or np.abs(np.diff(t) - dt).max() > REGULAR * dt:
         return t, measured, info
     band = None
-    if every is None:
+    if period is None:
         every, band = oversampling(measured)
+    else:
+        every = max(1, round(period / dt))
     if every == 1:
         return t, measured, info
     kept = t[::every]
@@ -324,7 +328,8 @@ def check_time(frame: pd.DataFrame, t: np.ndarray, measured: dict, source: str, 
 def build_dataset(t: np.ndarray, measured: dict[str, np.ndarray], config: DataConfig, spec: ModelSpec,
                   info: dict, dtype, source: str = "data", estimator: DerivativeEstimator | None = None,
                   keep_measured: bool = False) -> Dataset:
-    """Estimate every signal ``spec`` reads from the measured ones (``estimator``: default
+    """Estimate every signal ``spec`` reads, and every state the measured ones give (free runs start
+    from each state), from the measured ones (``estimator``: default
     :func:`derivative_estimator` of ``config``; measured states smoothed by it unless
     ``keep_measured``), then check they vary where the method needs variation (targets for the
     correlation of Eq. 19, adjustment functions)."""
@@ -332,13 +337,17 @@ def build_dataset(t: np.ndarray, measured: dict[str, np.ndarray], config: DataCo
     exact = isinstance(estimator, Exact)
     signals = {"t": t}
     estimates = {}
-    for name in sorted(spec.signals - {"t"}):
+    source_of = lambda name: sorted((split_derivative(m)[1], m) for m in measured
+                                    if split_derivative(m)[0] == split_derivative(name)[0]
+                                    and split_derivative(m)[1] <= split_derivative(name)[1])
+    # every signal the equations read, and every state the data give (a free run starts from each state)
+    wanted = spec.signals | {s for s in spec.states if s in measured or (source_of(s) and not exact)}
+    for name in sorted(wanted - {"t"}):
         if name in measured and (exact or keep_measured or name in spec.inputs):
             signals[name] = measured[name]
             continue
         base, order = split_derivative(name)
-        sources = sorted((split_derivative(m)[1], m) for m in measured if split_derivative(m)[0] == base
-                         and split_derivative(m)[1] <= order)
+        sources = source_of(name)
         if not sources:
             raise ConfigError("data.columns", f"the model reads {name!r} but no measured column gives {base!r} "
                               f"or a lower derivative of it (measured: {', '.join(sorted(measured)) or 'none'})")
@@ -347,7 +356,7 @@ def build_dataset(t: np.ndarray, measured: dict[str, np.ndarray], config: DataCo
             raise ConfigError("data.derivatives", f"{name!r} is not measured: choose an estimator "
                               f"({', '.join(n for n in ESTIMATORS.names if n != estimator.name)})")
         if source_name not in estimates:
-            highest = max(split_derivative(s)[1] for s in spec.signals if split_derivative(s)[0] == base) - measured_order
+            highest = max(split_derivative(s)[1] for s in wanted if split_derivative(s)[0] == base) - measured_order
             column_name = config.columns.get(source_name, source_name)
             estimates[source_name] = estimator.estimate(t, measured[source_name], highest,
                                                         f"{source}: column {column_name!r} ({source_name})")

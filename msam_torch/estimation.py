@@ -163,17 +163,24 @@ def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset 
     every = max(1, min(t.size // samples, int(1 / (SAMPLES_PER_PERIOD * band)), int(half_width / (QUADRATURE * dt))))
     exact = not train.measured
     device, dtype = train.t.device, train.t.dtype
-    build = lambda d, source: _signals(_measured(d), every, DERIVATIVE_MARGIN * band, data, spec, dtype, estimator,
-                                       exact, source)
-    try:
-        signals, formed = build(train, "training data")
-        held = None if held_out is None else build(held_out, "held-out data")
-    except DataError as error:
-        raise DataError(f"after decimation by {every}: {error}") from None
+    def build(d: Dataset, source: str) -> tuple[dict, dict, float]:
+        """A record's signals, decimated to about the training record's decimated sample time
+        (rules in time units: a held-out record may be sampled at another rate)."""
+        step = float(d.t[1] - d.t[0])
+        k = max(1, round(every * dt / step))
+        try:
+            return (*_signals(_measured(d), k, DERIVATIVE_MARGIN * band * step / dt, data, spec, dtype, estimator,
+                              exact, source), k * step)
+        except DataError as error:
+            raise DataError(f"after decimation by {k}: {error}") from None
+
+    signals, formed, period = build(train, "training data")
+    held = None if held_out is None else build(held_out, "held-out data")
     # interpolated at most REFINE-fold, and to at most QUADRATURE * samples samples (the cost of every fit)
     budget = QUADRATURE * samples // signals["t"].shape[-1]
-    fold = max(1, min(REFINE, math.ceil(QUADRATURE * every * dt / half_width), budget)) if refine else 1
-    signals, held = (None if d is None else _refined(*d, fold, device) for d in ((signals, formed), held))
+    fold = max(1, min(REFINE, math.ceil(QUADRATURE * period / half_width), budget)) if refine else 1
+    refined_to = lambda d: _refined(d[0], d[1], max(1, round(fold * d[2] / period)), device)  # the same spacing
+    signals, held = refined_to((signals, formed, period)), None if held is None else refined_to(held)
     form = "measured (unsmoothed)" if not exact else "given (exact)"
     how = "linearly" if _held(formed) else "band-limited"
     info = {"band_edge": band / dt, "band_edges": {k: v / dt for k, v in edges.items()}, "half_width_rule": rule,

@@ -52,6 +52,22 @@ def test_same_verdict_and_exponent_on_a_record_ten_times_longer():
     assert short.estimator["half_width"] == pytest.approx(HALF_AMPLITUDE / short.estimator["band_edge"], rel=0.05)
 
 
+def test_a_held_out_record_at_another_sampling_rate_is_read_by_the_same_rules_in_time_units():
+    """Training data sampled 10x faster than the bundled record, held-out data of the same system at
+    the bundled rate or at the training one (noise-free, so that the records differ only in their
+    rate): the held-out record is decimated, its derivative cut-off placed and its quadrature
+    refined by the training record's rules in time units, so both give the same effect, exponent
+    and held-out improvement (before, by the training record's factors in samples: the slower
+    held-out record was cut far below its band and its effect read power-law damping)."""
+    w, (train, fast_held_out) = records(1.0, 10, noise=0.0)
+    slow_held_out = records(1.0, 1, noise=0.0)[1][1]
+    fast, slow = (diagnose({"model": w.model}, data=train, validation=h, options=QUICK).equations[0]
+                  for h in (fast_held_out, slow_held_out))
+    assert fast.effect == slow.effect == "Coulomb friction" and abs(fast.exponent - slow.exponent) < 0.02
+    assert slow.improvement["relative"] == pytest.approx(fast.improvement["relative"], abs=0.03)
+    assert slow.improvement["target_rms"] == pytest.approx(fast.improvement["target_rms"], rel=0.05)
+
+
 def test_theta_of_a_null_case_from_unsmoothed_signals():
     # 1 % noise on x only, x_dot estimated in band: the re-fitted start recovers -c/m and -k/m
     w, (train, held_out) = records(1.0, 1, case="msd_linear")
@@ -292,6 +308,39 @@ def test_a_gap_the_candidates_cannot_express_is_not_called_no_gap():
     assert report.verdict_kind is not Verdict.NO_GAP
 
 
+def test_a_gap_on_too_few_rows_to_test_for_structure_is_not_called_no_gap():
+    """An undamped model (``x_ddot = -k x + u``: no term reads the state ``x_dot``) of an oscillator
+    with quadratic damping, 30 s records, 1 % noise: the held-out record gives 10 independent rows,
+    too few for the whiteness tests, and the candidates (powers of ``abs(x)``) cannot express the
+    damping. The re-fitted start's residual is then tested against the measurement noise by its
+    size (chi-square): far larger, "inconclusive" (before: "no significant gap"). The free runs
+    start from ``x_dot`` estimated from ``x`` (before: a KeyError). The bundled null case on
+    records as short (10 rows at 1 and 5 % noise) passes the same test."""
+    t, rng = np.arange(0, 30, 0.01), np.random.default_rng(0)
+    def record(freqs):
+        u = sum(np.sin(2 * np.pi * f * t + k) for k, f in enumerate(freqs))
+        force = lambda s: np.interp(s, t, u)
+        x = solve_ivp(lambda s, y: [y[1], -4.0 * y[0] - 0.2 * y[1] * abs(y[1]) + force(s)], (0, t[-1]), [0, 0],
+                      t_eval=t, rtol=1e-10, atol=1e-12, max_step=0.01).y[0]
+        return pd.DataFrame({"t": t, "x": x + 0.01 * x.std() * rng.standard_normal(t.size), "u": u})
+    model = {"states": ["x", "x_dot"], "inputs": ["u"], "parameters": {"k": 4.0},
+             "equations": [{"target": "x_ddot", "components": [{"term": "x", "theta": "-k"},
+                                                                {"term": "u", "theta": 1.0, "adjustable": False}],
+                            "adjustments": ["abs(x)"]}]}
+    report = diagnose({"model": model, "data": {"time": "t", "columns": {"x": "x", "u": "u"}}},
+                      data=record((0.1, 0.23, 0.41)), validation=record((0.07, 0.3, 0.6)),
+                      options=DiagnoseOptions(bootstrap=0))
+    checks = report.equations[0].checks
+    assert report.verdict_kind is Verdict.INCONCLUSIVE and checks["independent_rows"] < 12
+    assert checks["noise_p"] < 1e-6 and "times what the measurement noise explains" in checks["failed"][0]
+    assert all(math.isfinite(v) for v in report.measures["free_run"]["held_out"]["nrmse"].values())
+    for noise in (0.01, 0.05):
+        w, (train, held_out) = records(1.0, 1, case="msd_linear", noise=noise)
+        null = diagnose({"model": w.model}, data=train, validation=held_out, options=QUICK).equations[0]
+        assert null.verdict_kind is Verdict.NO_GAP and null.checks["independent_rows"] < 12
+        assert null.checks["noise_p"] > 0.05
+
+
 def test_cli_takes_the_diagnose_options(tmp_path, capsys):
     w, (train, held_out) = records(1.0, 1, case="msd_quadratic_drag")
     for data, file in ((train, "train.csv"), (held_out, "held.csv")):
@@ -377,6 +426,30 @@ def test_free_runs_start_from_the_record_and_are_scored_against_it_as_recorded()
     assert report.data["train"]["derivatives"]["prey"]["window"] > 40  # the loader's smoother is wide
     runs = report.measures["free_run"]
     assert runs["train"]["nrmse"]["adapted"] < 0.02 and runs["held_out"]["nrmse"]["adapted"] < 0.03
+
+
+def test_free_runs_hold_an_input_the_weak_form_reads_as_held():
+    """``x' = -2 x + 2 u`` sampled every 0.2 s (2.5 samples per time constant) under a PRBS held for
+    3 to 9 samples, the model exact and the data noise-free: the estimation reads the input as
+    held, and the free runs hold it too, with a step that divides the sample period (switches fall
+    between steps): the nominal model simulates both records to NRMSE 1e-8 (interpolated linearly
+    between samples, as before, 0.16; held with a step across the switches, 0.007)."""
+    rng = np.random.default_rng(5)
+    t = np.arange(1500) * 0.2
+    def record():
+        u = np.repeat(rng.choice([-1.0, 1.0], 400), rng.integers(3, 10, 400))[:t.size]
+        x = np.zeros(t.size)
+        for k in range(t.size - 1):  # exact discretisation of the held input
+            x[k + 1] = u[k] + (x[k] - u[k]) * np.exp(-2 * 0.2)
+        return pd.DataFrame({"t": t, "x": x, "u": u})
+    model = {"states": ["x"], "inputs": ["u"], "parameters": {"a": 2.0},
+             "equations": [{"target": "x_dot", "components": [{"term": "x", "theta": "-a"}, {"term": "u", "theta": "a"}],
+                            "adjustments": ["abs(x)"]}]}
+    report = diagnose({"model": model, "data": {"time": "t", "columns": {"x": "x", "u": "u"}}}, data=record(),
+                      validation=record(), options=DiagnoseOptions(bootstrap=0))
+    assert report.equations[0].estimator["input_hold"] == {"u": "zoh"}
+    for label in ("train", "held_out"):
+        assert report.measures["free_run"][label]["nrmse"]["start"] < 1e-4, report.measures["free_run"][label]["nrmse"]
 
 
 def test_a_free_run_that_leaves_the_record_does_not_hold_back_the_step():

@@ -51,13 +51,14 @@ def check_solver(method: str) -> None:
 
 
 def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, series: dict, options: DiagnoseOptions,
-            band: float = math.inf, starts: dict | None = None) -> dict:
+            band: float = math.inf, starts: dict | None = None, held: tuple[str, ...] = ()) -> dict:
     """One-step and free-run measures of the three models on training and held-out data; the
     arrays the plots draw are added to ``series`` (per target); ``band``: the band edge of the
     measured states (cycles per time unit), which bounds a fixed solver step. The free runs are
     scored against the states as recorded (not as the data loader smoothed them) and start from
     ``starts[label]``'s first samples where given (the diagnosis's own view of each record: its
-    weak-form signals), else from the dataset's. A free run that diverges (not finite, or NRMSE
+    weak-form signals), else from the dataset's, under the inputs as recorded (``held``: held between
+    samples, as the weak form reads them, else interpolated linearly). A free run that diverges (not finite, or NRMSE
     above :data:`DIVERGED`) is listed in ``diverged`` and has no NRMSE.
 
     Held-out data are simulated with every bootstrap trial's models (for the interval of the gap
@@ -76,7 +77,7 @@ def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, serie
     if not options.free_run:
         return out
     batches = {label: models if label == list(sets)[-1] else [_first(m, 3) for m in models] for label in sets}
-    trajectories, solvers = _simulate_sets(spec, sets, batches, options, band, starts or {})
+    trajectories, solvers = _simulate_sets(spec, sets, batches, options, band, starts or {}, held)
     for label, dataset in sets.items():
         s, trajectory = recorded(dataset), trajectories[label]
         measured = [x for x in spec.states if x in dataset.info.get("measured", spec.states)] or list(spec.states)
@@ -105,10 +106,11 @@ def recorded(dataset) -> dict:
 
 
 def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: DiagnoseOptions, band: float,
-                   starts: dict) -> tuple:
+                   starts: dict, held: tuple[str, ...]) -> tuple:
     """Free runs from each set's first state (``starts[label]``, else the set's) under its inputs;
     sets on the same time grid are integrated in one batch. A fixed-step solver without a given step starts at
-    :data:`PER_PERIOD` of the band's period (at most 1/:data:`STEPS` of the record) and halves it
+    :data:`PER_PERIOD` of the band's period (at most 1/:data:`STEPS` of the record; below the sample
+    period, its nearest divisor) and halves it
     until the three point models' runs at the step and at twice it agree (:func:`converged`) over
     the first :data:`CHECK_STEPS` steps, at most :data:`HALVINGS` times (each set's ``solver``
     entry says whether they agreed, and ``unconverged`` which did not): the step follows the
@@ -128,11 +130,13 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
         auto = fixed and step is None
         if auto:
             step = min(float(t[-1] - t[0]) / STEPS, PER_PERIOD / band)
+            dt = float(t[1] - t[0])
+            step = dt / round(dt / step) if step < dt else step  # a held input switches between steps
         seen = lambda u: anti_aliased(u, float(t[1] - t[0]), 2 * step if auto else step) if fixed else u
         inputs = {u: torch.cat([seen(sets[label].signals[u]).expand(n, -1) for label, n in zip(group, sizes)])
                   for u in spec.inputs}
-        first = lambda label, x: (starts.get(label) or sets[label].signals).get(x, sets[label].signals[x])[0]
-        initial = {x: torch.cat([first(label, x).expand(n) for label, n in zip(group, sizes)]) for x in spec.states}
+        initial = {x: torch.cat([_first_sample(x, starts.get(label), sets[label].signals).expand(n)
+                                 for label, n in zip(group, sizes)]) for x in spec.states}
         views = {label: recorded(sets[label]) for label in group}
         scale = {x: max(float(views[label][x].abs().max()) for label in group) for x in spec.states}
         atol = torch.tensor([options.atol * max(scale[x], torch.finfo(t.dtype).tiny) for x in spec.states],
@@ -140,7 +144,7 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
         run = lambda models, step, n, keep=None: simulate(
             spec, models, t[:n], {u: (v if keep is None else v[keep])[..., :n] for u, v in inputs.items()},
             {x: v if keep is None else v[keep] for x, v in initial.items()}, method=options.solver, step=step,
-            rtol=options.rtol, atol=atol, scale=scale)
+            rtol=options.rtol, atol=atol, scale=scale, held=held)
         if auto:  # the run at twice the step agrees, or the step is halved
             n = max(2, int((t <= t[0] + CHECK_STEPS * step).sum()))
             points = torch.cat([torch.arange(o, o + 3) for o in torch.tensor([0] + sizes[:-1]).cumsum(0).tolist()])
@@ -169,6 +173,15 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
         for k, label in enumerate(group):
             result[label] = {x: v[offsets[k]:offsets[k + 1]] for x, v in trajectory.items()}
     return result, steps
+
+
+def _first_sample(state: str, *views: dict | None) -> torch.Tensor:
+    """A state's first sample in the first of ``views`` (signal mappings) that holds it."""
+    for view in views:
+        if view and state in view:
+            return view[state][0]
+    raise MSAMError(f"cannot start a free run: the data give no value of state {state!r} "
+                    "(measure it or a lower derivative of it, or pass --no-free-run)")
 
 
 def anti_aliased(signal: torch.Tensor, dt: float, step: float) -> torch.Tensor:

@@ -79,7 +79,8 @@ def _diagnose_once(config: Config, data: DataArgument, validation: DataArgument,
     series = {e.gap.target: e.series for e in equations}
     step(LOGGER, "diagnose", "comparing the models", total - 1, total)
     gap_measures = compare(spec, [e.model for e in equations], train, held_out, series, options,
-                           estimation.info["band_edge"], {"train": estimation.train, "held_out": estimation.held_out})
+                           estimation.info["band_edge"], {"train": estimation.train, "held_out": estimation.held_out},
+                           tuple(u for u, how in estimation.info["input_hold"].items() if how == "zoh"))
     kind, verdict, reasons = overall(gaps, any(g.significant for g in gaps), name_targets=len(gaps) > 1,
                                      free_run=gap_measures.get("free_run"))
     gaps = demoted(gaps, kind, reasons)

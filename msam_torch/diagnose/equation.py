@@ -103,7 +103,8 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     structure = structure_left(equation, weak, choices, original, best)
     checks = residual_checks(equation, weak, choices, original, [u for u in spec.inputs if u in weak.val_signals],
                              options.check_level, options.max_residual_structure, options.absolute,
-                             options.relative, estimation.reach)
+                             options.relative, estimation.reach,
+                             noise * float(torch.linalg.vector_norm(weak.val_tests.kernels[order])))
     kind, reasons = equation_verdict(is_significant, outcome, sure, structure, checks, options)
     winner = best if is_significant else 0
     where = starting_where(equation, weak.signals)

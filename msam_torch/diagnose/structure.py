@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 
 import torch
-from scipy.stats import norm
+from scipy.stats import chi2, norm
 from statsmodels.stats.diagnostic import acorr_ljungbox
 
 from ..spec import Equation
@@ -63,7 +63,7 @@ def structure_left(equation: Equation, weak: WeakForm, choices: torch.Tensor, or
 
 def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, original: Fitted, inputs: list[str],
                     level: float, largest_structure: float, negligible: float, relative: float,
-                    reach: int = 0) -> dict:
+                    reach: int = 0, row_noise: float = 0.0) -> dict:
     """Whether the re-fitted start's held-out residual looks like noise: on rows of test functions
     apart by their length plus ``reach`` samples (the window of a derivative estimate; then the rows
     are independent under white measurement noise), the Ljung-Box p-value of its
@@ -71,9 +71,11 @@ def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, o
     window averages (lags up to :data:`LAGS`), each at least ``level``, and the share of its mean
     square a nearest-neighbour regression predicts at most ``largest_structure``, or the structure
     found not relevant (:func:`relevant`, the null rule's ``relative`` and ``negligible`` margins).
-    A residual within ``negligible`` of the held-out target's RMS passes, and
-    so (``unchecked``) does one with fewer than :data:`FEWEST_ROWS` independent rows. ``failed``
-    names the checks missed."""
+    A residual within ``negligible`` of the held-out target's RMS passes. On fewer than
+    :data:`FEWEST_ROWS` independent rows (``unchecked``: too few to test for structure) the residual
+    must be as small as the measurement noise makes it: ``row_noise`` (a row's noise standard
+    deviation, at least ``negligible`` of the target's RMS) explains its sum of squares by the
+    chi-square test at ``level`` (``noise_p``). ``failed`` names the checks missed."""
     residual = (weak.val_data.y[0] - predict_rows(weak.val_data, choices, original)[0, 0])
     rows = torch.nonzero(weak.val_rows).squeeze(-1)
     rows = rows[::weak.apart(reach)]
@@ -82,8 +84,16 @@ def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, o
     rms = float(residual[weak.val_rows].square().mean().sqrt())
     if rms <= negligible * weak.target_rms:
         return {**out, "negligible": True}
-    if rows.numel() < FEWEST_ROWS:  # too short a record to tell: noted, not failed
-        return {**out, "unchecked": f"only {rows.numel()} independent held-out rows"}
+    if rows.numel() < FEWEST_ROWS:  # too few rows to test for structure: the residual must be the noise's size
+        few = f"only {rows.numel()} independent held-out rows"
+        floor = max(row_noise, negligible * weak.target_rms)
+        out.update(unchecked=few, noise_p=float(chi2.sf(float(residual[rows].square().sum()) / floor**2,
+                                                        rows.numel())))
+        if out["noise_p"] < level:
+            out["failed"].append(f"{few}, too few to test the re-fitted start's residual for structure, and it is "
+                                 f"{rms / floor:.3g} times what the measurement noise explains "
+                                 f"(chi-square p = {out['noise_p']:.2g})")
+        return out
     u = [weak.val_tests.average(weak.val_signals[name])[rows] for name in inputs]
     out.update(whiteness(residual[rows], u, level, weak.target_rms, relative, negligible))
     explained, total = _explained(equation, weak, choices, original, (0,))[0]

@@ -39,6 +39,7 @@ TRY = {"estimation": "try another --half-width or a held-out record from another
                    "or components, or try another --half-width",
        "simulated residual": "the starting model misses something the candidates do not express: add candidate "
                              "adjustments or components",
+       "length": "a longer held-out record gives the residual checks the independent rows they need",
        "apart": "a record that spans a wider range of the signals the two read, or another excitation, may tell "
                 "them apart"}
 
@@ -74,7 +75,7 @@ def no_gap_verdict(checks: dict, hint: str = TRY["residual"]) -> tuple[Verdict, 
     """No significant effect: "no significant gap" when the re-fitted start's residual passes its
     ``checks``, else inconclusive with the checks it failed and ``hint``, what to try."""
     if checks["failed"]:
-        return Verdict.INCONCLUSIVE, [*checks["failed"], hint]
+        return Verdict.INCONCLUSIVE, [*checks["failed"], hint, *([TRY["length"]] if checks.get("unchecked") else [])]
     return Verdict.NO_GAP, []
 
 

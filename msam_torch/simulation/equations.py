@@ -73,9 +73,11 @@ class EquationModel:
 def simulate_equations(spec: ModelSpec, models: Sequence[EquationModel], t: torch.Tensor,
                        inputs: Mapping[str, torch.Tensor], initial: Mapping[str, torch.Tensor | float],
                        method: str = "rk4", step: float | None = None, rtol: float = 1e-6, atol: float = 1e-9,
-                       blowup: float = 1e3, scale: Mapping[str, float] | None = None) -> dict[str, torch.Tensor]:
+                       blowup: float = 1e3, scale: Mapping[str, float] | None = None,
+                       held: Sequence[str] = ()) -> dict[str, torch.Tensor]:
     """Integrate every state of ``spec`` from ``initial`` (each (B,) or scalar) over the uniform grid
-    ``t`` (N,) under ``inputs`` (each (N,) or (B, N)): each state (B, N), NaN where diverged (beyond
+    ``t`` (N,) under ``inputs`` (each (N,) or (B, N); the ``held`` ones held between samples, else
+    interpolated linearly): each state (B, N), NaN where diverged (beyond
     ``blowup`` times ``scale``, each state's typical magnitude, default ``max(|initial|, 1)``).
     Fixed-step solvers step by ``step`` (default: the sampling period times ``N // 500``, about
     500 steps a record); adaptive ones use ``rtol`` and ``atol``."""
@@ -85,7 +87,8 @@ def simulate_equations(spec: ModelSpec, models: Sequence[EquationModel], t: torc
         base, order = split_derivative(name)
         derivative = derivative_name(base, order + 1)
         if derivative not in spec.states and derivative not in targets:
-            raise MSAMError(f"cannot simulate: state {name!r} has no equation for {derivative!r} and no state holds it")
+            raise MSAMError(f"model.equations: cannot simulate: state {name!r} has no equation for {derivative!r} and "
+                            "no state holds it (add the equation, or skip the free runs: --no-free-run)")
     model = SystemModel.build(spec, equations, tuple(spec.inputs))
     b = max(m.theta.shape[0] for m in models)
     dtype, device = t.dtype, t.device
@@ -97,7 +100,8 @@ def simulate_equations(spec: ModelSpec, models: Sequence[EquationModel], t: torc
     batched = any(v.dim() == 2 for v in table)
     external = torch.stack([v.expand(b, -1) if batched else v for v in table], -1) if table else \
         torch.zeros(t.shape[0], 0, dtype=dtype, device=device)
-    record = Record(t, external, t.new_zeros(0, t.shape[0]), y0[0])
+    record = Record(t, external, t.new_zeros(0, t.shape[0]), y0[0],
+                    held=torch.tensor([u in held for u in model.external], dtype=torch.bool, device=device))
     typical = torch.tensor([abs(float((scale or {}).get(s, 0.0))) for s in model.states], dtype=dtype, device=device)
     span = torch.maximum(y0.abs().amax(0).clamp_min(1.0) if scale is None else y0.abs().amax(0), typical) * blowup
     step = step or float(t[1] - t[0]) * max(1, t.shape[0] // 500)

@@ -35,6 +35,7 @@ class Record:
     guess: torch.Tensor
     hold: str = "linear"
     pieces: torch.Tensor | None = None  # (N-1, 4, E) cubic interpolating spline of ``external`` (hold "cubic")
+    held: torch.Tensor | None = None  # (E,) bool: signals held between samples whatever ``hold`` (a stepped input)
 
     @classmethod
     def build(cls, t: torch.Tensor, external: torch.Tensor, outputs: torch.Tensor, guess: torch.Tensor,
@@ -52,22 +53,26 @@ class Record:
 
     def to(self, device) -> "Record":
         move = lambda v: None if v is None else v.to(device)
-        return Record(move(self.t), move(self.external), move(self.outputs), move(self.guess), self.hold, move(self.pieces))
+        return Record(move(self.t), move(self.external), move(self.outputs), move(self.guess), self.hold, move(self.pieces),
+                      move(self.held))
 
     def at(self, t: torch.Tensor) -> torch.Tensor:
         """External signals at times ``t`` (M,) -> (M, E) or (B, M, E): linear interpolation,
-        zero-order hold or cubic spline."""
+        zero-order hold or cubic spline (the ``held`` signals held)."""
         n = self.t.shape[0]
         step = self.t[1] - self.t[0]
         position = (t - self.t[0]) / step
+        zoh = lambda: self.external[..., torch.floor(position + 1e-9).long().clamp(0, n - 1), :]
         if self.hold == "zoh":
-            return self.external[..., torch.floor(position + 1e-9).long().clamp(0, n - 1), :]
+            return zoh()
         k = torch.floor(position).long().clamp(0, n - 2)
         if self.pieces is not None:
             s, c = ((position - k) * step).unsqueeze(-1), self.pieces[k].movedim(-2, 0)
-            return ((c[0] * s + c[1]) * s + c[2]) * s + c[3]
-        w = (position - k).clamp(0.0, 1.0).unsqueeze(-1)
-        return self.external[..., k, :] * (1 - w) + self.external[..., k + 1, :] * w
+            values = ((c[0] * s + c[1]) * s + c[2]) * s + c[3]
+        else:
+            w = (position - k).clamp(0.0, 1.0).unsqueeze(-1)
+            values = self.external[..., k, :] * (1 - w) + self.external[..., k + 1, :] * w
+        return values if self.held is None or not bool(self.held.any()) else torch.where(self.held, zoh(), values)
 
 
 @dataclass(frozen=True)
