@@ -104,6 +104,27 @@ def test_named_from_declared_quantities_and_never_wrong_without(case, name, tota
     assert bare.verdict_kind is not Verdict.EXPLAINED and bare.effect in (None, "power law, no catalogued effect")
 
 
+def test_the_state_an_equation_acts_on_has_its_quantity_even_where_no_term_reads_it():
+    """A quarter car's unsprung mass, ``zu_ddot = ks/mu d + cs/mu d_dot - kt/mu (zu - zr)``, with the
+    positions d, zu and zr declared: no term reads ``zu_dot``, the velocity the equation's effects
+    act on; its quantity comes from zu's all the same (before: none, and a cubic stiffness on d read
+    "quantities not declared")."""
+    model = {"states": ["d", "d_dot", "zu", "zu_dot"], "inputs": ["zr"], "parameters": {},
+             "quantities": {"d": "position", "zu": "position", "zr": "position"},
+             "equations": [{"target": "d_ddot", "components": [{"term": "d", "theta": -1.0}], "adjustments": ["abs(d)"]},
+                           {"target": "zu_ddot", "components": [{"term": "d", "theta": 400.0},
+                                                                 {"term": "d_dot", "theta": 30.0},
+                                                                 {"term": "zu - zr", "theta": -4800.0, "adjustable": False}],
+                            "adjustments": ["abs(d)"]}]}
+    spec = ModelSpec.from_config(load_config({"model": model, "data": {"time": "t"}}).model)
+    equation = spec.equations[1]
+    roles = catalogue.Roles.of_equation(spec, equation)
+    assert (roles.of("zu_dot"), roles.of("zu_ddot"), roles.of("d_dot")) == ("velocity", "acceleration", "velocity")
+    reading = catalogue.read(roles, equation, 0, 0)
+    assert (reading.acts_on, reading.term, reading.depends_on, reading.power) == ("velocity", "position", "position", 1.0)
+    assert not roles.assumed
+
+
 def test_temperatures_in_celsius_get_no_radiation_name_and_a_note_to_give_kelvin():
     """The heated body recorded in degrees Celsius, declared so: a power of a Celsius temperature is
     no power of the absolute one, so the gap gets no catalogue name, and its naming says that the
@@ -170,6 +191,23 @@ def test_a_config_effect_is_named_like_a_bundled_one():
     gap = run(model, frames, {"V": "volume", "q": "flow"})
     assert gap.effect == "evaporation" and gap.naming["domain"] == "hydraulic"
     assert gap.naming["total_exponent"] == pytest.approx(2 / 3, abs=0.1)
+
+
+def test_a_config_effect_of_a_bundled_law_gets_the_config_s_name_not_a_tie():
+    """A config's own entry with quadratic drag's law (exponent 2 on a velocity, the same sign) names
+    a fit that quadratic drag would: the bundled entry is shadowed where both fit, instead of two
+    names that no record can tell apart; on an angular velocity, which the config's entry does not
+    read, quadratic drag still names it."""
+    drag = next(e for e in bundled() if e.name == "quadratic drag")
+    own = {"name": "cart drag", "domain": "mechanical", "acts_on": "velocity", "term": "velocity",
+           "depends_on": "velocity", "form": "additive", "exponent": 2, "sign": drag.sign,
+           "description": "0.5 rho Cd A v|v|", "reference": "test"}
+    spec = ModelSpec.from_config(load_config({"model": {**MODEL, "effects": [own]}, "data": {"time": "t"}}).model)
+    same_sign = drag.sign in ("any", "same")
+    on = lambda quantity: catalogue.Reading(quantity, quantity, quantity, "v", 1.0)
+    assert [e.name for e in catalogue.admitted(catalogue.entries(spec), on("velocity")) if e.exponent == 2] == ["cart drag"]
+    assert catalogue.match(catalogue.entries(spec), on("velocity"), 2.03, 0.1, same_sign).name == "cart drag"
+    assert catalogue.match(catalogue.entries(spec), on("angular_velocity"), 2.03, 0.1, same_sign).name == "quadratic drag"
 
 
 MODEL = {"states": ["x"], "equations": [{"target": "x_dot", "components": [{"term": "x", "theta": -1}],

@@ -92,14 +92,15 @@ class Roles:
     def of_equation(cls, spec: ModelSpec | None, equation: Equation) -> "Roles":
         declared = dict(spec.quantities) if spec is not None else {}
         known = dict(declared)
-        for name in sorted(equation.signals):
-            base, order = split_derivative(name)
-            q = declared.get(base)
-            for _ in range(order):
+        base, order = split_derivative(equation.target)
+        state = derivative_name(base, order - 1)  # what the effect acts on (:func:`read`), read or not
+        for name in sorted(equation.signals | {equation.target, state}):
+            root, times = split_derivative(name)
+            q = declared.get(root)
+            for _ in range(times):
                 q = RATE_OF.get(q) if q is not None else None
             if name not in known and q is not None:
                 known[name] = q
-        base, order = split_derivative(equation.target)
         assumed = {}
         if order == 2 and not any(s in declared for s in equation.signals):
             assumed = {derivative_name(base, k): q for k, q in ASSUMED.items()}
@@ -153,13 +154,17 @@ def consistent(catalogue: tuple[EffectConfig, ...], reading: Reading, total: flo
 
 
 def admitted(catalogue: tuple[EffectConfig, ...], reading: Reading) -> list[EffectConfig]:
-    """The entries whose quantities fit ``reading``, at any exponent and sign (see :func:`consistent`)."""
+    """The entries whose quantities fit ``reading``, at any exponent and sign (see :func:`consistent`);
+    a config's own entry shadows a bundled one of the same law (exponent and sign) that fits too:
+    the config's name for it, not a tie no data can break."""
     if reading.power is None or None in (reading.acts_on, reading.term, reading.depends_on):
         return []
     if reading.term == reading.depends_on and reading.power != 1.0:
         return []
-    return [e for e in catalogue if reading.acts_on in e.acts_on and reading.term in e.term
+    fits = [e for e in catalogue if reading.acts_on in e.acts_on and reading.term in e.term
             and reading.depends_on in e.depends_on]
+    own = [e for e in fits if e not in bundled()]
+    return [e for e in fits if e in own or not any((e.exponent, e.sign) == (o.exponent, o.sign) for o in own)]
 
 
 def signed(entry: EffectConfig, same_sign: bool) -> bool:
