@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from .api import adapt
-from .config import Config, load_config
+from .config import Config, RangeConfig, load_config
 from .data import DataArgument, resolve_datasets
 from .diagnose import DiagnoseOptions, GapReport, diagnose
 from .errors import ConfigError, DataError, MSAMError
@@ -74,12 +74,14 @@ class MSAM:
         """Coefficient of determination R^2 of the free run on ``data``: the model of ``stage`` is
         simulated from the record's first (estimated) state under its inputs, and ``1 - sum (x -
         xhat)^2 / sum (x - mean x)^2`` is averaged over the measured states (1 is perfect; a run
-        that diverges scores -inf)."""
+        that diverges scores -inf). The whole record is scored: the config's ``data.train``,
+        ``data.validation`` and ``data.validation_file`` do not apply to it."""
         result = self._result()
         config = load_config(result.config)
         data = self._table(data, "data")
         plan = prepare(config, in_memory=data is not None, measured=records_measured(config, data))
-        record, _ = resolve_datasets(config.data, plan.spec, self.base_dir, plan.dtype, data, None, plan.derivatives)
+        whole = config.data.model_copy(update={"train": RangeConfig(), "validation": None, "validation_file": None})
+        record, _ = resolve_datasets(whole, plan.spec, self.base_dir, plan.dtype, data, None, plan.derivatives)
         model = result.model(stage)
         signals = record.signals
         with torch.no_grad():

@@ -58,15 +58,18 @@ def result_stage(spec: ModelSpec, equations: list, data: dict, stage: str) -> St
 REPORT_STAGES = ("start", "retuned", "adapted")  # the rows of a diagnosis's models (diagnose.compare.models)
 
 
-def report_stage(models: list, stage: str) -> Stage:
-    """``stage`` (``start``, ``retuned``, ``adapted``) of a diagnosis from its equations'
-    extended-form :class:`~msam_torch.simulation.EquationModel` (one row per stage): per
+def report_stage(models: list, stage: str | tuple[str, ...]) -> Stage:
+    """``stage`` (``start``, ``retuned``, ``adapted``; or one per equation) of a diagnosis from its
+    equations' extended-form :class:`~msam_torch.simulation.EquationModel` (one row per stage): per
     component of the extended equation the adjustment, exponent and theta in the data's units."""
-    if stage not in REPORT_STAGES:
-        raise ConfigError("stage", f"unknown stage {stage!r} of a diagnosis (choose from {', '.join(REPORT_STAGES)})")
-    row = REPORT_STAGES.index(stage)
+    stages = (stage,) * len(models) if isinstance(stage, str) else stage
+    for s in stages:
+        if s not in REPORT_STAGES:
+            raise ConfigError("stage", f"unknown stage {s!r} of a diagnosis (choose from "
+                                       f"{', '.join(REPORT_STAGES + ('final',))})")
     adjustments, exponents, thetas = [], [], []
-    for model in models:
+    for model, s in zip(models, stages):
+        row = REPORT_STAGES.index(s)
         eq = model.equation
         adjustment, exponent, theta = [None] * len(eq.components), [None] * len(eq.components), [0.0] * len(eq.components)
         for k, i in enumerate(eq.adjustable):
@@ -121,16 +124,22 @@ class StateModel(nn.Module):
     @classmethod
     def from_report(cls, report, stage: str = "adapted", dtype=torch.float64) -> "StateModel":
         """The model of ``stage`` of a :class:`~msam_torch.diagnose.GapReport`: its equations
-        extended by the fitted effect term (the diagnosis's models, Eq. 9)."""
+        extended by the fitted effect term (the diagnosis's models, Eq. 9); ``final``: the model
+        with every effect added in turn (``report.in_turn``)."""
         if not report.models:
             raise ConfigError("stage", "this report holds no fitted models (a report read back from JSON, "
                                        "or a diagnosis by simulation): diagnose again to get them")
-        config = load_config(report.config)
+        config, models = load_config(report.config), report.models
+        if stage == "final":
+            if not report.final:
+                raise ConfigError("stage", "no effects were added in turn (diagnose with max_effects above 1): "
+                                           "the adapted model is the final one")
+            config, models, stage = load_config(report.final["config"]), report.final["models"], report.final["stages"]
         sim = config.adaptation.simulation
-        extended = tuple(m.equation for m in report.models)
+        extended = tuple(m.equation for m in models)
         spec = replace(ModelSpec.from_config(config.model), equations=extended)
         limits = state_limits(config, build_model(spec, extended).states, dtype)
-        return cls(spec, report_stage(report.models, stage), dtype, sim.input_hold, limits, sim.method, sim.substeps)
+        return cls(spec, report_stage(models, stage), dtype, sim.input_hold, limits, sim.method, sim.substeps)
 
     @property
     def states(self) -> tuple[str, ...]:

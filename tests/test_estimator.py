@@ -156,6 +156,19 @@ def test_simulate_predict_score_and_model():
     assert estimator.score(held, stage="start") == pytest.approx(start)
 
 
+def test_score_takes_the_whole_record_whatever_the_config_s_ranges_and_held_out_file():
+    """A config that trains on the first half of its file, holds out the second and names a
+    held-out file that is not there (the fit is given frames): ``score`` scores the whole frame it
+    is given (before: the first half, or a missing-file error)."""
+    ranged = {**CONFIG, "data": {**CONFIG["data"], "train": {"stop": 20.0}, "validation": {"start": 20.0},
+                                 "validation_file": "absent.csv"}}
+    estimator = MSAM(ranged, **QUICK).fit(record(), validation=record(True))
+    held = record(True)
+    whole, first = estimator.score(held), estimator.score(held[held["time"] <= 20.0])
+    late = estimator.score(held[held["time"] > 20.0].reset_index(drop=True))
+    assert whole > 0.9 and abs(whole - first) > 1e-6 and abs(whole - late) > 1e-6
+
+
 def test_bad_options_are_one_line_errors_naming_the_option():
     with pytest.raises(ConfigError, match="^thetaa: unknown option .*did you mean 'theta'"):
         MSAM(CONFIG, thetaa="varpro")

@@ -86,6 +86,12 @@ def test_two_withheld_effects_are_both_found_in_turn(case):
     assert f"**{effects[0]['exponent']:.6g}" in effects[1]["starting_equation"]
     assert all(f"**{e['exponent']:.6g}" in r.in_turn["final_model"]["x_ddot"] for e in effects)  # both in
     assert effects[1]["free_run_nrmse"]["after"] < 0.05
+    # the final model as a module holds both effects and simulates the held-out record as closely
+    held_out = datasets(case)[1]
+    t, u, x = held_out.t, held_out.signals["u"], held_out.measured["x"]
+    run = lambda stage: r.model(stage).simulate(t, {"u": u}, torch.tensor([float(x[0]), 0.0], dtype=torch.float64))[:, 0]
+    nrmse = lambda stage: float((run(stage) - x).square().mean().sqrt() / x.std())
+    assert nrmse("final") < 0.05 < nrmse("adapted")
 
 
 def test_an_offset_and_a_cubic_stiffness_are_both_found_in_turn():

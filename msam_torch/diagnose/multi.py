@@ -16,7 +16,8 @@ next step). Nothing provisional is ever kept or reported as accepted.
 The report returned is the first diagnosis (of the user's starting model) with ``in_turn``: every
 accepted effect in order with the held-out gap before and after it (weak-form RMSE and free-run
 NRMSE; for an effect found beside a provisional one, of the models holding it), why the loop
-stopped, the final model (every accepted effect in, theta re-fitted) and the number of diagnoses run; its verdict names the accepted effects
+stopped, the final model (every accepted effect in, theta re-fitted; ``final``: its fitted models, for
+``GapReport.model("final")``) and the number of diagnoses run; its verdict names the accepted effects
 in order, its ``seconds`` are those of all the diagnoses.
 """
 from __future__ import annotations
@@ -59,7 +60,7 @@ def in_turn(config: Config, diagnose_round: Round, max_effects: int) -> GapRepor
             stopped = STOPPED[report.verdict_kind] + "".join(f"; {r}" for r in report.reasons)
             if beside is not None:
                 stopped += "; nor beside the best power law added provisionally"
-            final = _equations(report, ())  # the model diagnosed last, theta re-fitted
+            last, adapted = report, ()  # the model diagnosed last, theta re-fitted
             break
         accepted = [g.target for g in found.equations if g.verdict_kind is Verdict.EXPLAINED]
         steps += [_step(found, g, step, beside) for g in found.equations if g.target in accepted]
@@ -67,12 +68,12 @@ def in_turn(config: Config, diagnose_round: Round, max_effects: int) -> GapRepor
         if adapt is None:
             limit = "the adapted structure is not diagnosed further (evaluated by simulation)"
         if limit and beside is None:
-            stopped, final = limit, _equations(found, accepted)
+            stopped, last, adapted = limit, found, accepted
             break
         model = adapt(accepted) if beside is None else without(adapt_beside(accepted), model, provisional)
         report, adapt = timed(model)
         if limit:  # the model without the provisional effect, diagnosed for its equations
-            stopped, final = limit, _equations(report, ())
+            stopped, last, adapted = limit, report, ()
             break
         step += 1
     several = len(first.equations) > 1
@@ -80,8 +81,11 @@ def in_turn(config: Config, diagnose_round: Round, max_effects: int) -> GapRepor
     kept = not steps or (first.verdict_kind is Verdict.EXPLAINED and all(s["step"] == 1 for s in steps))
     verdict = first.verdict if kept else Verdict.EXPLAINED.text(", then ".join(named))
     kind = Verdict.EXPLAINED if steps else first.verdict_kind
+    stages = tuple("adapted" if g.target in adapted else "retuned" for g in last.equations)
     return replace(first, verdict_kind=kind, verdict=verdict, seconds=sum(seconds),
-                   in_turn={"effects": steps, "stopped": stopped, "final_model": final, "diagnoses": len(seconds)})
+                   in_turn={"effects": steps, "stopped": stopped, "final_model": _equations(last, adapted),
+                            "diagnoses": len(seconds)},
+                   final={"config": last.config, "models": last.models, "stages": stages})
 
 
 def _unexplained(report: GapReport) -> bool:

@@ -100,10 +100,12 @@ class GapReport:
     in_turn: dict = field(default_factory=dict)  # effects added in turn, why the loop stopped, final model (.multi)
     series: dict = field(default_factory=dict, repr=False, compare=False)  # arrays for the plots
     models: tuple = field(default=(), repr=False, compare=False)  # per equation: start, retuned, adapted (Eq. 9)
+    final: dict = field(default_factory=dict, repr=False, compare=False)  # effects in turn: config, models, stages
 
     def model(self, stage: str = "adapted", dtype=torch.float64):
-        """The equations of ``stage`` (``start``, ``retuned``, ``adapted``) as an ``nn.Module``
-        ``f(t, x)`` for ``torchdiffeq.odeint`` (:meth:`~msam_torch.model.StateModel.from_report`)."""
+        """The equations of ``stage`` (``start``, ``retuned``, ``adapted``, or ``final``: every effect
+        added in turn) as an ``nn.Module`` ``f(t, x)`` for ``torchdiffeq.odeint``
+        (:meth:`~msam_torch.model.StateModel.from_report`)."""
         return StateModel.from_report(self, stage, dtype)
 
     def __str__(self) -> str:
@@ -152,7 +154,7 @@ class GapReport:
 
     def to_dict(self) -> dict:
         out = {"version": SCHEMA_VERSION}
-        out.update({k: v for k, v in asdict(self).items() if k not in ("series", "models")})
+        out.update({k: v for k, v in asdict(self).items() if k not in ("series", "models", "final")})
         out["equations"] = [{**asdict(g), "verdict": g.verdict} for g in self.equations]
         return out
 
