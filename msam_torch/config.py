@@ -11,6 +11,7 @@ from __future__ import annotations
 import difflib
 import math
 import re
+import typing
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
@@ -318,18 +319,36 @@ def validate(schema: type[BaseModel], raw: dict, origin: str):
         error = next((e for e in errors if e["type"] == "value_error"), errors[0])
         loc = [p for p in error["loc"] if not (isinstance(p, str) and _BRANCH.match(p))]
         key = ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in loc).replace(".[", "[")
-        raise ConfigError(key, f"{error['msg'].removeprefix('Value error, ')}{_misspelt(error, errors)} (in {origin})") from None
+        raise ConfigError(key, f"{error['msg'].removeprefix('Value error, ')}{_misspelt(error, errors, schema)} "
+                               f"(in {origin})") from None
 
 
-def _misspelt(error: dict, errors: list[dict]) -> str:
-    """For a missing key beside an unknown one of a close spelling (or the reverse): which one."""
+def _misspelt(error: dict, errors: list[dict], schema: type[BaseModel]) -> str:
+    """For a missing key beside an unknown one of a close spelling (or the reverse): which one; for
+    an unknown key alone, the key of the same section it is closest to."""
     other = {"missing": "extra_forbidden", "extra_forbidden": "missing"}.get(error["type"])
     names = [str(e["loc"][-1]) for e in errors if e["type"] == other and e["loc"][:-1] == error["loc"][:-1]]
     close = difflib.get_close_matches(str(error["loc"][-1]), names, n=1)
-    if not close:
-        return ""
-    missing, given = (error["loc"][-1], close[0]) if error["type"] == "missing" else (close[0], error["loc"][-1])
-    return f" ({given!r} is given: a misspelling of {missing!r}?)"
+    if close:
+        missing, given = (error["loc"][-1], close[0]) if error["type"] == "missing" else (close[0], error["loc"][-1])
+        return f" ({given!r} is given: a misspelling of {missing!r}?)"
+    known = difflib.get_close_matches(str(error["loc"][-1]), _keys(schema, error["loc"][:-1]), n=1)
+    return f" (did you mean {known[0]!r}?)" if error["type"] == "extra_forbidden" and known else ""
+
+
+def _keys(schema: Any, loc: tuple) -> list[str]:
+    """The keys of the section of ``schema`` at ``loc`` (list indices and mapping keys passed
+    through, optional and list types unwrapped); none where it is not a section."""
+    for part in (*loc, None):
+        while typing.get_origin(schema) is not None and not isinstance(schema, type):
+            args = [a for a in typing.get_args(schema) if a is not type(None)]
+            schema = args[0] if typing.get_origin(schema) is Annotated else args[-1] if args else None
+        if part is None or not (isinstance(schema, type) and issubclass(schema, BaseModel)):
+            break
+        if isinstance(part, str):
+            field = schema.model_fields.get(part)
+            schema = field.annotation if field is not None else None
+    return list(schema.model_fields) if isinstance(schema, type) and issubclass(schema, BaseModel) else []
 
 
 def load_config(source: Union[str, Path, dict], overrides: list[str] = ()) -> Config:

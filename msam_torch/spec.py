@@ -104,8 +104,10 @@ class ModelSpec:
         targets = set()
         for e, eq in enumerate(config.equations):
             key = f"model.equations[{e}]"
-            if eq.target not in signals or split_derivative(eq.target)[1] == 0:
-                raise ConfigError(f"{key}.target", f"{eq.target!r} is not the derivative of a state (e.g. 'x_dot')")
+            base, order = split_derivative(eq.target)
+            if eq.target not in signals or order == 0 or derivative_name(base, order - 1) not in config.states:
+                raise ConfigError(f"{key}.target", f"{eq.target!r} is not the derivative of a state "
+                                  f"(states: {', '.join(config.states) or 'none'})")
             if eq.target in targets:
                 raise ConfigError(f"{key}.target", f"{eq.target!r} has two equations")
             targets.add(eq.target)

@@ -214,6 +214,10 @@ CORPUS: dict[str, dict[str, tuple]] = {
         "walrus": (theta("(y := 3)"), [], 2, [THETA, "NamedExpr"]),
         "adjustment unknown name": (lambda p: bundled(p, lambda r: r["model"]["equations"][0]["adjustments"].__setitem__(
             0, "abs(y)")), [], 2, ["model.equations[0].adjustments[0]", "unknown name 'y'"]),
+        "target an input's derivative": (lambda p: bundled(p, lambda r: r["model"]["equations"][0].__setitem__(
+            "target", "u_dot")), [], 2, ["model.equations[0].target", "'u_dot' is not the derivative of a state"]),
+        "target above the states": (lambda p: bundled(p, lambda r: r["model"]["equations"][0].__setitem__(
+            "target", "x_dddot")), [], 2, ["model.equations[0].target"]),
         "term divides by zero on the data": (lambda p: bundled(p, component(term="x_dot/0")), [], 2,
                                              ["components[0].term", "not finite"]),
         "adjustment log of a signal through zero": (lambda p: bundled(p, lambda r: r["model"]["equations"][0][
@@ -237,8 +241,10 @@ CORPUS: dict[str, dict[str, tuple]] = {
         "missing config": (lambda p: p / "nothing.yaml", [], 2, ["nothing.yaml", "no such config"]),
         "config is a folder": (lambda p: p, [], 2, ["cannot read"]),
         "unknown top-level key": (override("modle.states=[x]"), [], 2, ["modle"]),
-        "unknown data key": (override("data.windw=31"), [], 2, ["data.windw"]),
-        "unknown adaptation key": (override("adaptation.stepsize=one"), [], 2, ["adaptation.stepsize"]),
+        "unknown data key": (override("data.windw=31"), [], 2, ["data.windw", "did you mean 'window'?"]),
+        "misspelt optional key": (override("data.colums.x=x"), [], 2, ["data.colums", "did you mean 'columns'?"]),
+        "unknown adaptation key": (override("adaptation.stepsize=one"), [], 2,
+                                   ["adaptation.stepsize", "did you mean 'step_size'?"]),
         "unknown simulation key": (override("adaptation.simulation.solver=rk4"), [], 2, ["adaptation.simulation.solver"]),
         "unknown range key": (override("data.train.begin=0"), [], 2, ["data.train.begin"]),
         "unknown component key": (lambda p: bundled(p, component(thetta=1)), [], 2,
@@ -350,7 +356,8 @@ CORPUS: dict[str, dict[str, tuple]] = {
         "column for an unknown signal": (frame(edit=lambda c: c["data"]["columns"].update(zz="x")), [], 2, ["zz"]),
         "empty training range": (frame(train={"start": 100.0}), [], 2, ["data.train", "selects no samples"]),
         "empty validation range": (frame(validation={"start": 50.0, "stop": 60.0}), [], 2, ["data.validation"]),
-        "missing validation file": (frame(validation_file="held.csv"), [], 2, ["held.csv", "no such data file"]),
+        "missing validation file": (frame(validation_file="held.csv"), [], 2, ["held.csv", "no such data file",
+                                                                          "data.validation_file"]),
         "neither system nor file": (lambda p: bundled(p, lambda r: r["data"].pop("system")), [], 2, ["data", "exactly one"]),
     },
     "records simulated against": {  # the measured outputs take the targets' part (adaptation.evaluation: simulation)
