@@ -168,8 +168,9 @@ def _require_diagnosis(report, path: Path) -> None:
 
     for gap in report.equations:
         if all(c.get("diverged", False) for c in gap.ranking):
+            hint = next((r for r in gap.checks.get("reasons", ()) if "adaptation" in r), None)
             raise NoInformation(f"{gap.target}: every hypothesis of the diagnosis diverged or has a non-finite "
-                                f"held-out RMSE; {path} records it")
+                                f"held-out RMSE; {path} records it" + (f" ({hint})" if hint else ""))
         if not all(math.isfinite(gap.improvement[k]) for k in ("retuned_rmse", "adapted_rmse")):
             raise NoInformation(f"{gap.target}: the held-out RMSE of the theta re-fitted or adapted model is not "
                                 f"finite; {path} records it")

@@ -148,3 +148,26 @@ def test_a_held_input_is_read_by_every_stage_of_its_own_steps(tmp_path, substeps
                    torch.ones(1, 1, dtype=torch.float64), torch.ones(1, 1, dtype=torch.float64))
     x = simulate(model, record, p, torch.zeros(1, 1, dtype=torch.float64), substeps=substeps)[0, :, 0]
     torch.testing.assert_close(x, record.outputs[0], rtol=0, atol=1e-9)
+
+
+def test_a_diagnosis_whose_candidates_all_diverged_says_so_and_blames_no_candidate_set():
+    """Every candidate of an equation diverged in the adaptation by simulation: the equation is
+    inconclusive because nothing was fitted, with the damped step to try (before, "the candidates
+    do not express" the gap, which no fit had tested)."""
+    from msam_torch.diagnose import DiagnoseOptions, Verdict
+    from msam_torch.diagnose.simulated import _equation_gap
+    from msam_torch.result import EquationResult
+
+    config = load_config(TANKS)
+    plan, equation = prepare(config), ModelSpec.from_config(config.model).equations[1]
+    n = len(equation.components)
+    adapted = EquationResult(equation.target, "", "", [None] * n, [None] * n, [0.0] * n, {}, {},
+                             [{"adjustments": ["abs(x1)", None], "diverged": True},
+                              {"adjustments": [None, "abs(x2)"], "diverged": True}], 2)
+    where = {"flagged_fraction": 0.0, "split_explained": 0.0, "time_windows": [], "regions": []}
+    gap = _equation_gap(equation, adapted, [0.05, -0.05], [0.05, -0.05], True, torch.tensor([1.0, 0.5, 0.4]), 1.0,
+                        where, {"failed": []}, DiagnoseOptions(), plan)
+    assert gap.verdict_kind is Verdict.INCONCLUSIVE and not gap.significant and gap.effect is None
+    reasons = gap.checks["reasons"]
+    assert "every candidate diverged" in reasons[0] and "adaptation.damping" in reasons[1]
+    assert not any("do not express" in r for r in reasons)

@@ -97,7 +97,11 @@ def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retu
     known = [i for i in index if names[i] != catalogue.NOT_CATALOGUED]
     shown = known[0] if known else (index[0] if index else None)
     effect = names[shown] if significant and shown is not None else None
-    if not significant:
+    if adapted.ranking and all(c.get("diverged", False) for c in adapted.ranking):  # nothing was fitted
+        significant, effect = False, None
+        kind, reasons = Verdict.INCONCLUSIVE, [f"every candidate diverged in the adaptation by simulation: "
+                                               f"{eq.target} was not fitted", TRY["adaptation diverged"]]
+    elif not significant:
         kind, reasons = no_gap_verdict(checks, TRY["simulated residual"])  # no test functions to widen
     else:
         kind, reasons = (Verdict.EXPLAINED if known else Verdict.NOT_EXPLAINED), []

@@ -39,6 +39,8 @@ TRY = {"estimation": "try another --half-width or a held-out record from another
                    "or components, or try another --half-width",
        "simulated residual": "the starting model misses something the candidates do not express: add candidate "
                              "adjustments or components",
+       "adaptation diverged": "a damped step (adaptation.damping, e.g. 0.1) may keep the adaptation by simulation "
+                              "stable",
        "length": "a longer held-out record gives the residual checks the independent rows they need",
        "apart": "a record that spans a wider range of the signals the two read, or another excitation, may tell "
                 "them apart"}
