@@ -9,8 +9,9 @@ digits for the derived columns), gzip-compressed, with an explicit time column.
 """
 from __future__ import annotations
 
+import argparse
+
 import shutil
-import sys
 from pathlib import Path
 
 import pandas as pd
@@ -66,7 +67,10 @@ def copy(source: Path) -> None:
 
 
 if __name__ == "__main__":
-    src = Path(sys.argv[1] if len(sys.argv) > 1 else Path(__file__).resolve().parent.parent.parent / "shared" / "data")
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("source", nargs="?", type=Path, help="folder of the full benchmark files (default: ../shared/data)",
+                        default=Path(__file__).resolve().parent.parent.parent / "shared" / "data")
+    src = parser.parse_args().source
     silverbox(src)
     emps(src)
     cascaded_tanks(src)

@@ -10,7 +10,8 @@ squares on the training record (the same estimated signals the adaptation saw).
 """
 from __future__ import annotations
 
-import sys
+import argparse
+
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -180,7 +181,10 @@ def run(case: str) -> None:
 
 
 if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("cases", nargs="*", default=["silverbox", "emps", "cascaded_tanks", "us_is"],
+                        help="configs/<case>.yaml to run (default: all four)")
     keep_freed_memory()
     torch.set_num_threads(2)
-    for case in sys.argv[1:] or ["silverbox", "emps", "cascaded_tanks", "us_is"]:
+    for case in parser.parse_args().cases:
         run(case)

@@ -60,10 +60,11 @@ def _run(args) -> int:
     result = stop.record(result)
     path = result.save(out / "result.json")
     _require_information(result, path)
+    rows = " on the weak form's rows" if result.data.get("form") == "weak" else ""
     for eq in result.equations:
         print(f"starting: {eq.start_equation}")
         print(f"adapted:  {eq.equation}")
-        print(f"  sum|eps| {eq.start['sum_abs_error']:.4g} -> {eq.final['sum_abs_error']:.4g}, "
+        print(f"  sum|eps|{rows} {eq.start['sum_abs_error']:.4g} -> {eq.final['sum_abs_error']:.4g}, "
               f"rho {eq.start['rho']:.4f} -> {eq.final['rho']:.4f}, "
               f"{len(eq.ranking)} candidates, {eq.diverged} diverged")
         for stage, label in (("start", "tuned starting"), ("final", "tuned adapted")) if eq.theta_tuning else ():
@@ -72,8 +73,8 @@ def _run(args) -> int:
             print(f"{label}: {tuned['equation']}\n  sum|eps| {tuned['sum_abs_error']:.4g}, rho {tuned['rho']:.4f}; "
                   f"nominal theta off by {off}")
         if eq.validation:
-            print("  held out: " + ", ".join(f"{name} sum|eps| {m['sum_abs_error']:.4g} rho {m['rho']:.4f}"
-                                             for name, m in eq.validation.items()))
+            print("  held out, one-step against the estimated derivative: " + ", ".join(
+                f"{name} sum|eps| {m['sum_abs_error']:.4g} rho {m['rho']:.4f}" for name, m in eq.validation.items()))
     for group in result.data.get("simulation", []):
         for record, rows in group["free_run_rmse"].items():
             print(f"free-run RMSE of {', '.join(group['outputs'])} on the {record} record: "

@@ -8,10 +8,8 @@ Values are data: YAML is read with a ``yaml.SafeLoader`` and no string is ever e
 """
 from __future__ import annotations
 
-import difflib
 import math
 import re
-import typing
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
@@ -24,6 +22,7 @@ from .errors import ConfigError
 from .evaluators import EVALUATORS
 from .registry import Choice
 from .step_rules import STEP_SIZES, ThetaRule
+from .suggestions import misspelt
 
 MAX_YAML_DEPTH = 64
 _BRANCH = re.compile(r"^(str|int|float|bool|[a-z-]+\[.*[a-z].*\])$")  # pydantic's labels of union branches in a location
@@ -319,36 +318,8 @@ def validate(schema: type[BaseModel], raw: dict, origin: str):
         error = next((e for e in errors if e["type"] == "value_error"), errors[0])
         loc = [p for p in error["loc"] if not (isinstance(p, str) and _BRANCH.match(p))]
         key = ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in loc).replace(".[", "[")
-        raise ConfigError(key, f"{error['msg'].removeprefix('Value error, ')}{_misspelt(error, errors, schema)} "
+        raise ConfigError(key, f"{error['msg'].removeprefix('Value error, ')}{misspelt(error, errors, schema)} "
                                f"(in {origin})") from None
-
-
-def _misspelt(error: dict, errors: list[dict], schema: type[BaseModel]) -> str:
-    """For a missing key beside an unknown one of a close spelling (or the reverse): which one; for
-    an unknown key alone, the key of the same section it is closest to."""
-    other = {"missing": "extra_forbidden", "extra_forbidden": "missing"}.get(error["type"])
-    names = [str(e["loc"][-1]) for e in errors if e["type"] == other and e["loc"][:-1] == error["loc"][:-1]]
-    close = difflib.get_close_matches(str(error["loc"][-1]), names, n=1)
-    if close:
-        missing, given = (error["loc"][-1], close[0]) if error["type"] == "missing" else (close[0], error["loc"][-1])
-        return f" ({given!r} is given: a misspelling of {missing!r}?)"
-    known = difflib.get_close_matches(str(error["loc"][-1]), _keys(schema, error["loc"][:-1]), n=1)
-    return f" (did you mean {known[0]!r}?)" if error["type"] == "extra_forbidden" and known else ""
-
-
-def _keys(schema: Any, loc: tuple) -> list[str]:
-    """The keys of the section of ``schema`` at ``loc`` (list indices and mapping keys passed
-    through, optional and list types unwrapped); none where it is not a section."""
-    for part in (*loc, None):
-        while typing.get_origin(schema) is not None and not isinstance(schema, type):
-            args = [a for a in typing.get_args(schema) if a is not type(None)]
-            schema = args[0] if typing.get_origin(schema) is Annotated else args[-1] if args else None
-        if part is None or not (isinstance(schema, type) and issubclass(schema, BaseModel)):
-            break
-        if isinstance(part, str):
-            field = schema.model_fields.get(part)
-            schema = field.annotation if field is not None else None
-    return list(schema.model_fields) if isinstance(schema, type) and issubclass(schema, BaseModel) else []
 
 
 def load_config(source: Union[str, Path, dict], overrides: list[str] = ()) -> Config:
@@ -368,7 +339,12 @@ def _yaml_place(exc: yaml.YAMLError) -> str:
     return f"{place}: {problem}"
 
 
+_INDEX = re.compile(r"\[(\d+)\]")
+
+
 def _apply_overrides(raw: dict, overrides) -> dict:
+    """``key.path=value`` overrides (YAML values); ``[i]`` or ``.i`` indexes a list that exists
+    (``model.equations[0].components[1].theta=-2``)."""
     import copy
 
     raw = copy.deepcopy(raw)
@@ -377,13 +353,20 @@ def _apply_overrides(raw: dict, overrides) -> dict:
         if not sep or not key:
             raise ConfigError(item, "an override must look like key.path=value")
         node = raw
-        parts = key.split(".")
-        for part in parts[:-1]:
-            node = node.setdefault(part, {})
-            if not isinstance(node, dict):
-                raise ConfigError(key, f"{part!r} is not a section")
+        parts = _INDEX.sub(r".\1", key).split(".")
+        for k, part in enumerate(parts):
+            place = ".".join(parts[:k + 1])
+            if isinstance(node, list):
+                if not part.isdigit() or int(part) >= len(node):
+                    raise ConfigError(key, f"{place!r}: the list has {len(node)} items (index 0 to {len(node) - 1})")
+                part = int(part)
+            elif not isinstance(node, dict):
+                raise ConfigError(key, f"{'.'.join(parts[:k])!r} is not a section")
+            if k == len(parts) - 1:
+                break
+            node = node[part] if isinstance(node, list) else node.setdefault(part, {})
         try:
-            node[parts[-1]] = load_yaml(value)
+            node[part] = load_yaml(value)
         except yaml.YAMLError as exc:
             raise ConfigError(key, f"malformed value {value!r}{_yaml_place(exc)}") from None
     return raw

@@ -27,8 +27,8 @@ from .errors import ConfigError, DataError
 from .information import check_variation
 from .spec import ModelSpec, split_derivative
 from .systems import get_system, measure
+from .tables import Table, as_frame, read_frame
 
-Table = Union[pd.DataFrame, Mapping[str, object]]
 REGULAR = 1e-2  # sampling is regular when every step is within 1 % of the median step
 LARGEST = float(np.finfo(np.float64).max) / 8  # a measured value at most this large keeps third differences finite
 
@@ -64,11 +64,12 @@ DataArgument = Union[str, Path, Table, Dataset, None]
 
 def load_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str = ".", dtype=torch.float64,
                   frame: Table | None = None, validation_frame: Table | None = None,
-                  estimator: DerivativeEstimator | None = None) -> tuple[Dataset, Dataset | None]:
+                  estimator: DerivativeEstimator | None = None,
+                  keys: tuple[str, str] = ("data.file", "data.validation_file")) -> tuple[Dataset, Dataset | None]:
     """Training and (if configured) validation datasets for ``spec``.
 
     ``frame`` (and ``validation_frame``) replace ``data.file`` (``data.validation_file``) with an
-    in-memory table; the column mapping, time and ranges still come from ``config``, the
+    in-memory table (``keys``: what a missing file is named by); the column mapping, time and ranges still come from ``config``, the
     derivative ``estimator`` too unless given (:func:`derivative_estimator`)."""
     if frame is None and (config.system is None) == (config.file is None):
         raise ConfigError("data", "give exactly one of 'system' (simulated) or 'file' (measured)")
@@ -77,13 +78,13 @@ def load_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str = ".
         return simulated_dataset(config, spec, dtype, estimator), None
     base_dir = Path(base_dir)
     table, source = (as_frame(frame, "data frame") if frame is not None
-                     else read_frame(base_dir / config.file, base_dir, "data.file"))
+                     else read_frame(base_dir / config.file, base_dir, keys[0]))
     train = measured_dataset(select_range(table, config.train, config, source, "data.train"),
                              config, spec, f"{source} (data.train)", dtype, estimator)
     validation, period = None, train.info["sample_time"]  # held out at the training record's (decimated) rate
     if validation_frame is not None or config.validation_file is not None:
         held, held_source = (as_frame(validation_frame, "validation frame") if validation_frame is not None
-                             else read_frame(base_dir / config.validation_file, base_dir, "data.validation_file"))
+                             else read_frame(base_dir / config.validation_file, base_dir, keys[1]))
         validation = measured_dataset(held, config, spec, held_source, dtype, estimator, period)
     elif config.validation is not None:
         part = select_range(table, config.validation, config, source, "data.validation")
@@ -121,71 +122,11 @@ def resolve_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str =
         update.update(validation_file=str(Path(validation).resolve()), validation=None)
     frame = data if isinstance(data, (pd.DataFrame, Mapping)) else None
     validation_frame = validation if isinstance(validation, (pd.DataFrame, Mapping)) else None
+    keys = ("the data argument" if "file" in update else "data.file",
+            "the validation argument" if "validation_file" in update else "data.validation_file")
     train, held_out = load_datasets(config.model_copy(update=update), spec, base_dir, dtype, frame,
-                                    validation_frame, estimator)
+                                    validation_frame, estimator, keys)
     return train, validation if isinstance(validation, Dataset) else held_out
-
-
-def as_frame(data: Table, source: str) -> tuple[pd.DataFrame, str]:
-    """A DataFrame from a DataFrame or a mapping of equal-length 1-D arrays or tensors."""
-    if isinstance(data, pd.DataFrame):
-        frame = data.reset_index(drop=True)
-    elif isinstance(data, Mapping):
-        columns = {}
-        for name, value in data.items():
-            array = value.detach().cpu().numpy() if torch.is_tensor(value) else np.asarray(value)
-            if array.ndim != 1:
-                raise DataError(f"{source}: column {name!r} must be 1-D, got shape {array.shape}")
-            columns[str(name)] = array
-        if len({a.size for a in columns.values()}) > 1:
-            sizes = {k: a.size for k, a in columns.items()}
-            raise DataError(f"{source}: columns differ in length {sizes}")
-        frame = pd.DataFrame(columns)
-    else:
-        raise DataError(f"{source}: expected a pandas DataFrame or a mapping of column name to array, "
-                        f"got {type(data).__name__}")
-    frame.index.name = "row"
-    return frame, source
-
-
-def read_frame(path: Path, folder: Path | None = None, key: str | None = None) -> tuple[pd.DataFrame, str]:
-    """Read a CSV or Parquet file (named by the config's ``key``). CSV rows are indexed by their line in the file; unnamed
-    empty columns (trailing commas) are dropped. Error messages list the file's column names only
-    when it lies inside ``folder`` (the config's): nothing of a file elsewhere is ever echoed."""
-    source = str(path)
-    if not path.is_file():
-        raise DataError(f"{source}: no such data file" + (f" ({key})" if key else ""))
-    parquet = path.suffix.lower() in (".parquet", ".pq")
-    try:
-        if parquet:
-            frame = pd.read_parquet(path)
-            frame = frame.reset_index(drop=True)
-            frame.index.name = "row"
-        else:
-            frame = pd.read_csv(path, comment="#", skipinitialspace=True)
-            lines = _data_lines(path)
-            if len(lines) == len(frame):  # else (quoted line breaks) fall back to 0-based rows
-                frame.index = lines
-            frame.index.name = "line" if len(lines) == len(frame) else "row"
-    except (DataError, MemoryError):
-        raise
-    except Exception as exc:  # pandas and pyarrow raise many types for unreadable files
-        kind = "Parquet" if parquet else "CSV"
-        raise DataError(f"{source}: cannot read as {kind}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
-    keep = [c for c in frame.columns if not (str(c).startswith("Unnamed") and frame[c].isna().all())]
-    frame = frame.loc[:, keep]
-    frame.attrs["private"] = folder is None or not path.resolve().is_relative_to(Path(folder).resolve())
-    return frame, source
-
-
-def _data_lines(path: Path) -> list[int]:
-    """1-based line numbers of a CSV file's data rows (blank and comment lines skipped)."""
-    lines = []
-    with open(path, errors="replace") as handle:
-        for number, line in enumerate(handle, 1):
-            if line.strip() and not line.lstrip().startswith("#"):
-                lines.append(number)
-    return lines[1:]  # the first is the header
 
 
 def _rows(frame: pd.DataFrame, positions: np.ndarray, limit: int = 5) -> str:

@@ -19,7 +19,7 @@ from .config import Config, load_config
 from .errors import ConfigError
 from .expressions import Expression
 from .simulation import Parameters, Record, build_model, simulate, state_limits
-from .spec import ModelSpec
+from .spec import ModelSpec, split_derivative
 
 STAGES = ("start", "retuned", "adapted", "adapted_tuned")
 
@@ -255,10 +255,16 @@ class StateModel(nn.Module):
         return out
 
     def to_latex(self) -> str:
-        """The equations in LaTeX, one per line."""
+        """The equations in LaTeX, one per line; a derivative's name as its dots (``x_ddot``: ``\\ddot{x}``)."""
         import sympy
 
-        return " \\\\\n".join(sympy.latex(e) for e in self.to_sympy())
+        equations = self.to_sympy()
+        names = {}
+        for symbol in set().union(*(e.free_symbols for e in equations)):
+            base, order = split_derivative(symbol.name)
+            if 1 <= order <= 2:
+                names[symbol] = f"\\{'d' * order}ot{{{sympy.latex(sympy.Symbol(base))}}}"
+        return " \\\\\n".join(sympy.latex(e, symbol_names=names) for e in equations)
 
 
 def _sympy(expression: Expression):

@@ -58,6 +58,19 @@ def test_overrides_on_a_valid_config(path, value):
     expect_msam_error(load)
 
 
+def test_overrides_index_the_lists_of_a_config():
+    """``[i]`` and ``.i`` reach a list item that exists; an index past the list names the key."""
+    config = load_config(CONFIG, ["model.equations[0].components[1].theta=-2.5", "model.equations.0.adjustments=[abs(x)]"])
+    assert config.model.equations[0].components[1].theta == -2.5
+    assert config.model.equations[0].adjustments == ["abs(x)"]
+    try:
+        load_config(CONFIG, ["model.equations[3].target=x_ddot"])
+    except MSAMError as error:
+        assert "model.equations[3].target" in str(error) and "the list has 1 items" in str(error)
+    else:
+        raise AssertionError("an index past the list loaded")
+
+
 def corrupt(draw_frame: pd.DataFrame, data, kind: str) -> pd.DataFrame:
     frame = draw_frame.copy()
     column = data.draw(st.sampled_from(list(frame.columns)))
