@@ -60,13 +60,12 @@ def _run(args) -> int:
     result = stop.record(result)
     path = result.save(out / "result.json")
     _require_information(result, path)
-    rows = " on the weak form's rows" if result.data.get("form") == "weak" else ""
+    weak = " on the weak form's rows" if result.data.get("form") == "weak" else ""
     for eq in result.equations:
         print(f"starting: {eq.start_equation}")
         print(f"adapted:  {eq.equation}")
-        print(f"  sum|eps|{rows} {eq.start['sum_abs_error']:.4g} -> {eq.final['sum_abs_error']:.4g}, "
-              f"rho {eq.start['rho']:.4f} -> {eq.final['rho']:.4f}, "
-              f"{len(eq.ranking)} candidates, {eq.diverged} diverged")
+        print(f"  sum|eps|{weak} {eq.start['sum_abs_error']:.4g} -> {eq.final['sum_abs_error']:.4g}, "
+              f"rho {eq.start['rho']:.4f} -> {eq.final['rho']:.4f}, {len(eq.ranking)} candidates, {eq.diverged} diverged")
         for stage, label in (("start", "tuned starting"), ("final", "tuned adapted")) if eq.theta_tuning else ():
             tuned = eq.theta_tuning[stage]
             off = ", ".join(f"{100 * e:.3g}%" for e in tuned["nominal_error"])
@@ -166,12 +165,13 @@ def _require_diagnosis(report, path: Path) -> None:
     whose re-fitted and adapted models have no finite held-out measure, learnt nothing: no verdict
     is printed; ``path`` (written) records it."""
     import math
+    from .diagnose.verdict import TRY
 
     for gap in report.equations:
         if all(c.get("diverged", False) for c in gap.ranking):
-            hint = next((r for r in gap.checks.get("reasons", ()) if "adaptation" in r), None)
+            hint = f" ({TRY['adaptation diverged']})" if TRY["adaptation diverged"] in gap.checks.get("reasons", ()) else ""
             raise NoInformation(f"{gap.target}: every hypothesis of the diagnosis diverged or has a non-finite "
-                                f"held-out RMSE; {path} records it" + (f" ({hint})" if hint else ""))
+                                f"held-out RMSE; {path} records it{hint}")
         if not all(math.isfinite(gap.improvement[k]) for k in ("retuned_rmse", "adapted_rmse")):
             raise NoInformation(f"{gap.target}: the held-out RMSE of the theta re-fitted or adapted model is not "
                                 f"finite; {path} records it")

@@ -127,12 +127,11 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
         sizes = [batches[label][0].choice.shape[0] for label in group]
         batch = [_concat([batches[label][e] for label in group]) for e in range(len(batches[group[0]]))]
         step, agree, trajectory = options.solver_step, torch.ones(3 * len(group), dtype=torch.bool), None
-        auto = fixed and step is None
+        auto, dt = fixed and step is None, float(t[1] - t[0])
         if auto:
             step = min(float(t[-1] - t[0]) / STEPS, PER_PERIOD / band)
-            dt = float(t[1] - t[0])
             step = dt / round(dt / step) if step < dt else step  # a held input switches between steps
-        seen = lambda u: anti_aliased(u, float(t[1] - t[0]), 2 * step if auto else step) if fixed else u
+        seen = lambda u: anti_aliased(u, dt, 2 * step if auto else step) if fixed else u
         inputs = {u: torch.cat([seen(sets[label].signals[u]).expand(n, -1) for label, n in zip(group, sizes)])
                   for u in spec.inputs}
         initial = {x: torch.cat([_first_sample(x, starts.get(label), sets[label].signals).expand(n)

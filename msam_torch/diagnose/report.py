@@ -10,7 +10,7 @@ model), ``data``, ``options``, ``config``, ``seconds``.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -154,7 +154,8 @@ class GapReport:
 
     def to_dict(self) -> dict:
         out = {"version": SCHEMA_VERSION}
-        out.update({k: v for k, v in asdict(self).items() if k not in ("series", "models", "final")})
+        arrays = replace(self, series={}, models=(), final={})  # not in the JSON: not copied by asdict either
+        out.update({k: v for k, v in asdict(arrays).items() if k not in ("series", "models", "final")})
         out["equations"] = [{**asdict(g), "verdict": g.verdict} for g in self.equations]
         return out
 
