@@ -32,7 +32,7 @@ from .derivatives import DerivativeEstimator, InBand
 from .errors import DataError, MSAMError
 from .simulation import EquationModel
 from .spec import ModelSpec, derivative_name, split_derivative
-from .weak import half_width_for
+from .weak import TestFunctions, half_width_for, target_source
 
 SAMPLES_PER_PERIOD = 7  # decimation keeps the band edge below 1/7 of the sampling rate
 DERIVATIVE_MARGIN = 2.0  # a derivative's smoother passes twice the band edge
@@ -116,26 +116,56 @@ class Kink:
         return jump.broadcast_to(k.shape).numpy(), slope.reshape(-1).broadcast_to(k.shape).numpy()
 
 
-def kinking(spec: ModelSpec) -> dict[str, Kink]:
+def kinking(spec: ModelSpec, theta: Mapping[str, torch.Tensor] | None = None) -> dict[str, Kink]:
     """Per signal whose rate an equation gives (``T`` of ``T_dot``, ``x_dot`` of ``x_ddot``) and whose
-    equation reads an input: its :class:`Kink` (where the input switches, the signal has a kink)."""
+    equation reads an input: its :class:`Kink` (where the input switches, the signal has a kink), the
+    rate with the nominal theta or with ``theta`` (target -> theta of every component) where given."""
     out = {}
     for equation in spec.equations:
         base, order = split_derivative(equation.target)
         inputs = tuple(u for u in spec.inputs if u in equation.signals)
         if inputs:
             signal = derivative_name(base, order - 1)
-            out[signal] = Kink(signal, inputs, EquationModel.starting(equation, spec.theta(equation)))
+            given = (theta or {}).get(equation.target)
+            given = spec.theta(equation) if given is None else given
+            out[signal] = Kink(signal, inputs, EquationModel.starting(equation, given))
+    return out
+
+
+def refitted(kinks: Mapping[str, Kink], signals: Mapping[str, torch.Tensor], half_width: float) -> dict[str, torch.Tensor]:
+    """The theta of each kinking equation's starting components re-fitted to ``signals`` by least
+    squares in the weak form (test functions of ``half_width``): the input coefficients that give a
+    kink's jump, and the state's that gives its slope, as the record gives them rather than the
+    nominal ones (:mod:`~msam_torch.hold`); an equation whose fit is not determined keeps its theta."""
+    tests = TestFunctions.spanning(signals["t"], half_width)
+    out = {}
+    for kink in kinks.values():
+        equation = kink.model.equation
+        if not equation.signals - {equation.target} <= set(signals):
+            continue
+        source, order = target_source(equation, signals)
+        y = (-1) ** order * tests.integrate_signal(signals[source], order)
+        values = {k: v.unsqueeze(0) for k, v in signals.items()}
+        columns = torch.stack([torch.as_tensor(c.term(values), dtype=y.dtype).expand(values["t"].shape)[0]
+                               for c in equation.components], -1)
+        rows = tests.integrate(columns)
+        scale = rows.norm(dim=0)
+        if rows.shape[0] <= rows.shape[1] or not bool(torch.all(scale > 0) and torch.isfinite(rows).all()):
+            continue
+        theta = torch.linalg.lstsq(rows / scale, y.unsqueeze(-1)).solution.squeeze(-1) / scale
+        if bool(torch.isfinite(theta).all()):
+            out[equation.target] = theta.cpu().double()
     return out
 
 
 def _signals(measured: dict, every: int, band: float, data: DataConfig, spec: ModelSpec, dtype,
-             estimator: DerivativeEstimator, exact: bool, source: str) -> tuple[dict, dict]:
-    """Decimated measured signals (held inputs as their quadrature values, :mod:`~msam_torch.hold`)
-    with the derivatives the model reads that they lack; and how they were formed (the derivative
-    estimates, each input's assumed hold, the kink-corrected signals)."""
+             estimator: DerivativeEstimator, exact: bool, source: str, kinks: dict) -> tuple[dict, dict]:
+    """Decimated measured signals (held inputs as their quadrature values, the states' kinks at
+    their switches corrected by ``kinks``, :mod:`~msam_torch.hold`) with the derivatives the model
+    reads that they lack; and how they were formed (the derivative estimates, each input's assumed
+    hold, the kink-corrected signals)."""
     t = measured["t"][::every]
-    measured, held, kinks = hold.represent(measured, spec.inputs, data.input_hold, kinking(spec))
+    measured, held, kinks = hold.represent(measured, spec.inputs, data.input_hold, kinks)
     kept = {k: decimate(v, every) for k, v in measured.items() if k != "t"}
     if exact:  # every signal given (noise-free simulation): nothing to estimate
         return ({"t": torch.tensor(t, dtype=dtype), **{k: torch.tensor(np.ascontiguousarray(v), dtype=dtype)
@@ -163,19 +193,23 @@ def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset 
     every = max(1, min(t.size // samples, int(1 / (SAMPLES_PER_PERIOD * band)), int(half_width / (QUADRATURE * dt))))
     exact = not train.measured
     device, dtype = train.t.device, train.t.dtype
-    def build(d: Dataset, source: str) -> tuple[dict, dict, float]:
+    def build(d: Dataset, source: str, kinks: dict) -> tuple[dict, dict, float]:
         """A record's signals, decimated to about the training record's decimated sample time
         (rules in time units: a held-out record may be sampled at another rate)."""
         step = float(d.t[1] - d.t[0])
         k = max(1, round(every * dt / step))
         try:
             return (*_signals(_measured(d), k, DERIVATIVE_MARGIN * band * step / dt, data, spec, dtype, estimator,
-                              exact, source), k * step)
+                              exact, source, kinks), k * step)
         except DataError as error:
             raise DataError(f"after decimation by {k}: {error}") from None
 
-    signals, formed, period = build(train, "training data")
-    held = None if held_out is None else build(held_out, "held-out data")
+    kinks = kinking(spec)
+    signals, formed, period = build(train, "training data", kinks)
+    if formed["kinks_corrected"]:  # again, with the jumps and slopes of the starting model re-fitted to the record
+        kinks = kinking(spec, refitted(kinks, signals, half_width))
+        signals, formed, period = build(train, "training data", kinks)
+    held = None if held_out is None else build(held_out, "held-out data", kinks)
     # interpolated at most REFINE-fold, and to at most QUADRATURE * samples samples (the cost of every fit)
     budget = QUADRATURE * samples // signals["t"].shape[-1]
     fold = max(1, min(REFINE, math.ceil(QUADRATURE * period / half_width), budget)) if refine else 1
