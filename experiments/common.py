@@ -270,7 +270,7 @@ def median_model(records: list[dict], equation, position: int) -> str:
     """The most frequent selection among ``records`` with the median exponent of each component."""
     from collections import Counter
 
-    from msam_torch.result import format_component
+    from msam_torch.notation import format_component
 
     picks = [tuple(r["equations"][position]["adjustments"]) for r in records]
     common, count = Counter(picks).most_common(1)[0]

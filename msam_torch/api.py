@@ -13,7 +13,8 @@ from .data import DataArgument, Dataset, resolve_datasets
 from .estimation import Estimation, choose, regressor_band
 from .plan import Plan, make_trainer, prepare, records_measured
 from .progress import LOGGER
-from .result import EquationResult, RunResult, format_component, format_equation
+from .notation import format_component, format_equation
+from .result import EquationResult, RunResult
 from .simulation.adapt import adapt_simulation
 from .spec import Equation, ModelSpec
 from .systems import perturb_parameters

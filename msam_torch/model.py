@@ -18,6 +18,7 @@ from torch import nn
 from .config import Config, load_config
 from .errors import ConfigError
 from .expressions import Expression
+from .notation import format_component, format_equation
 from .simulation import Parameters, Record, build_model, simulate, state_limits
 from .spec import ModelSpec, split_derivative
 
@@ -228,6 +229,18 @@ class StateModel(nn.Module):
                              "function": None if chosen is None else chosen.text,
                              "exponent": None if chosen is None else float(self.gamma[0, j].detach())})
         return rows
+
+    def extra_repr(self) -> str:
+        """The equations as the reports print them (Eq. 9), one per line: what ``print(model)`` shows."""
+        rows = self.terms()
+        lines = []
+        for eq in self.system.equations:
+            own = [r for r in rows if r["equation"] == eq.target]
+            texts = [f.text for f in eq.adjustments]
+            terms = [format_component(eq, i, None if r["function"] is None else texts.index(r["function"]), r["exponent"])
+                     for i, r in enumerate(own)]
+            lines.append(format_equation(eq.target, [r["theta"] for r in own], terms))
+        return "\n".join(lines)
 
     def to_frame(self):
         """The terms as a pandas DataFrame (one row per component)."""

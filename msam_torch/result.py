@@ -19,34 +19,6 @@ from .outputs import write_atomic
 from .spec import Equation
 
 
-def _number(value: float) -> str:
-    return f"{value:.4g}"
-
-
-def format_component(equation: Equation, index: int, function: int | None, gamma: float | None) -> str:
-    """``x_dot|x_dot|^1.000`` (magnitude) or ``x1 sgn(x3)|x3|^1.000`` (signed); unadjusted: ``u``."""
-    term = equation.components[index].term.text
-    if any(op in term for op in "+-"):  # a sum reads as one factor: (c + i + g)|y|^0.5
-        term = f"({term})"
-    if function is None:
-        return term
-    f = equation.adjustments[function]
-    inner = f.inner_text
-    inner = inner if inner.isidentifier() else f"({inner})"
-    adjustment = f"|{inner}|^{gamma:.3f}" if f.is_magnitude else f"sgn({inner})|{inner}|^{gamma:.3f}"
-    return f"{term}{adjustment}" if term.isidentifier() and f.is_magnitude else f"{term} {adjustment}"
-
-
-def format_equation(target: str, thetas: list[float], terms: list[str]) -> str:
-    """``x_ddot = -26.13 x_dot|x_dot|^1.000 - 346.7 x|x|^2.000 + 0.002667 u``."""
-    parts = []
-    for theta, term in zip(thetas, terms):
-        sign = "-" if theta < 0 else "+"
-        body = f"{_number(abs(theta))} {term}"
-        parts.append(f"{sign} {body}" if parts else (f"-{body}" if theta < 0 else body))
-    return f"{target} = " + " ".join(parts)
-
-
 def adjusted_columns(equation: Equation, entry, signals: dict) -> torch.Tensor:
     """The components of ``entry`` (an :class:`EquationResult` or anything with its ``adjustments``
     and ``exponents``) with their adjustments ``M_i f_i^gamma_i`` (Eq. 9), without theta: (N, Q)."""

@@ -14,6 +14,7 @@ from torchdiffeq import odeint
 from msam_torch import adapt
 from msam_torch.config import load_config
 from msam_torch.errors import ConfigError
+from msam_torch.notation import format_component
 from msam_torch.simulation import free_runs
 from msam_torch.spec import ModelSpec
 
@@ -125,3 +126,19 @@ def test_a_run_judged_by_simulation_gives_its_retuned_stage(harmonic):
     assert simulated.model().to_frame()["theta"].tolist() == pytest.approx(result.equations[0].theta, rel=1e-12)
     with pytest.raises(ConfigError, match="adapted_tuned"):
         simulated.model("adapted_tuned")
+
+
+def test_print_shows_the_equations_as_the_result_prints_them(harmonic):
+    """``print(model)`` shows each stage's equation in the result's notation (before: ``StateModel()``)."""
+    result, _ = harmonic
+    entry = result.equations[0]
+    assert str(result.model("adapted")) == f"StateModel({entry.equation})"
+    assert str(result.model("retuned")) == f"StateModel({entry.theta_tuning['start']['equation']})"
+
+
+def test_an_exponent_that_rounds_to_zero_prints_without_a_sign():
+    spec = ModelSpec.from_config(load_config({"model": {
+        "states": ["i"], "inputs": ["v"], "parameters": {},
+        "equations": [{"target": "i_dot", "components": [{"term": "i", "theta": -1.0}], "adjustments": ["abs(i)"]}]}}).model)
+    assert format_component(spec.equations[0], 0, 0, -0.0001) == "i|i|^0.000"
+    assert format_component(spec.equations[0], 0, 0, -0.0006) == "i|i|^-0.001"

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import torch
 
 from ..data import Dataset
-from ..result import format_component, format_equation
+from ..notation import format_component, format_equation
 from ..simulation import EquationModel
 from ..spec import Equation, ModelSpec
 from ..step import StepOptions

@@ -34,7 +34,7 @@ import torch
 
 from ..candidates import EquationData, Selection, columns, predict
 from ..expressions import parse
-from ..result import format_component, format_equation
+from ..notation import format_component, format_equation
 from ..spec import Component, Equation
 from ..step import State, StepOptions, evaluate, step
 from .weak import WeakForm

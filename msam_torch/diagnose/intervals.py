@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import torch
 
-from ..result import format_component
+from ..notation import format_component
 from ..spec import Equation
 from .bootstrap import Bootstrap
 from .hypotheses import Fitted

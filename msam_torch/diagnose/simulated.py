@@ -25,7 +25,8 @@ from ..api import adapt, nominal_parameters
 from ..derivatives import METHODS, Auto, DerivativeEstimator
 from ..plan import Plan
 from ..progress import LOGGER, step
-from ..result import EquationResult, adjusted_columns, format_component, format_equation
+from ..notation import format_component, format_equation
+from ..result import EquationResult, adjusted_columns
 from ..simulation import FreeRun, free_runs
 from ..spec import Equation, ModelSpec, split_derivative
 from . import catalogue, confidence, localise, measures

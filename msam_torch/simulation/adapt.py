@@ -13,7 +13,8 @@ import torch
 from ..plan import Plan
 from ..data import Dataset
 from ..errors import ConfigError
-from ..result import EquationResult, RunResult, format_component, format_equation
+from ..notation import format_component, format_equation
+from ..result import EquationResult, RunResult
 from ..spec import Equation
 from ..trainer import Algebraic, Trainer
 from .evaluator import SimulationEvaluator
