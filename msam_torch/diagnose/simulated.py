@@ -23,9 +23,9 @@ import torch
 
 from ..api import adapt, nominal_parameters
 from ..derivatives import METHODS, Auto, DerivativeEstimator
+from ..notation import format_component, format_equation
 from ..plan import Plan
 from ..progress import LOGGER, step
-from ..notation import format_component, format_equation
 from ..result import EquationResult, adjusted_columns
 from ..simulation import FreeRun, free_runs
 from ..spec import Equation, ModelSpec, split_derivative
