@@ -82,8 +82,7 @@ def noise_level(y: np.ndarray) -> float:
     input that switches every few samples): the least of the estimates over
     :data:`DIFFERENCE_ORDERS`, each the median absolute deviation of the differences over
     ``sqrt(C(2k, k))``. A signal with most of its power near the Nyquist frequency (a state that
-    relaxes within a sample, switched every sample or two) still reads as noise at every order.
-    """
+    relaxes within a sample, switched every sample or two) still reads as noise at every order."""
     y = np.asarray(y, dtype=float)
     levels = []
     for k in (k for k in DIFFERENCE_ORDERS if y.size >= k + 2):
@@ -146,16 +145,19 @@ class InBand:
         return self.inner.name
 
     def estimate(self, t, y, order, where="signal") -> Estimate:
-        chosen = self.inner.choose(False) if isinstance(self.inner, Auto) else self.inner
+        chosen, rule = self.inner.choose(False) if isinstance(self.inner, Auto) else self.inner, None  # rule: not given
         if takes(chosen, "window") and chosen.window is None:
             degree = LOESS_DEGREE if isinstance(chosen, Loess) else max(SAVGOL_DEGREE, order)
             window = choose_window(np.asarray(y, dtype=float), degree)[0]
             chosen = dataclasses.replace(chosen, window=min(window, max(window_for(degree, self.band), degree + 2)))
+            rule = f"noise floor, at most the window that passes the band ({self.band:.4g} cycles/sample)"
         elif takes(chosen, "cutoff") and chosen.cutoff is None:
             dt = float(np.median(np.diff(t)))
             noise_floor = cutoff_frequency(np.asarray(y, dtype=float), noise_level(y))
             chosen = dataclasses.replace(chosen, cutoff=min(max(noise_floor, self.band), HIGHEST_CUTOFF) / dt)
-        return chosen.estimate(t, y, order, where)
+            rule = f"noise floor, at least the band ({self.band:.4g} cycles/sample)"
+        out = chosen.estimate(t, y, order, where)
+        return out if rule is None else Estimate(out.values, {**out.info, "window_rule": rule})
 
 
 @runtime_checkable
@@ -179,8 +181,7 @@ class Smoother:
     def estimate(self, t: np.ndarray, y: np.ndarray, order: int, where: str = "signal") -> Estimate:
         try:
             with np.errstate(all="ignore"):
-                t = np.asarray(t, dtype=float)
-                y = np.asarray(y, dtype=float)
+                t, y = np.asarray(t, dtype=float), np.asarray(y, dtype=float)
                 if order > 0 and y.size > 1 and np.ptp(y) == 0:
                     raise DataError(f"{where}: the signal is constant, so its derivatives carry no information")
                 info = {"method": self.name, "window": None, "window_rule": None, "noise_std": noise_level(y)}

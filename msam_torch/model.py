@@ -18,7 +18,6 @@ from torch import nn
 from .config import Config, load_config
 from .errors import ConfigError
 from .expressions import Expression
-from .notation import format_component, format_equation
 from .simulation import Parameters, Record, build_model, simulate, state_limits
 from .spec import ModelSpec, split_derivative
 
@@ -231,16 +230,11 @@ class StateModel(nn.Module):
         return rows
 
     def extra_repr(self) -> str:
-        """The equations as the reports print them (Eq. 9), one per line: what ``print(model)`` shows."""
-        rows = self.terms()
-        lines = []
-        for eq in self.system.equations:
-            own = [r for r in rows if r["equation"] == eq.target]
-            texts = [f.text for f in eq.adjustments]
-            terms = [format_component(eq, i, None if r["function"] is None else texts.index(r["function"]), r["exponent"])
-                     for i, r in enumerate(own)]
-            lines.append(format_equation(eq.target, [r["theta"] for r in own], terms))
-        return "\n".join(lines)
+        """The equations of :meth:`to_sympy` to four significant digits, one per line: what
+        ``print(model)`` shows (a diagnosis's unadjusted copies and constant functions simplified away)."""
+        import sympy
+
+        return "\n".join(f"{e.lhs} = {sympy.N(e.rhs, 4)}" for e in self.to_sympy())
 
     def to_frame(self):
         """The terms as a pandas DataFrame (one row per component)."""

@@ -4,7 +4,7 @@ period gets the same cut-off, above its highest line."""
 import numpy as np
 import pytest
 
-from msam_torch.derivatives import cutoff_frequency, estimate, noise_level
+from msam_torch.derivatives import Butterworth, InBand, SavitzkyGolay, cutoff_frequency, estimate, noise_level
 
 LINES = (0.004, 0.007, 0.011, 0.015, 0.019, 0.024)  # cycles per sample: a band with gaps between lines
 NOISE = 0.01  # of the signal's standard deviation
@@ -57,3 +57,14 @@ def test_cutoff_of_white_noise_and_of_a_noise_free_record():
     assert cutoff_frequency(y, noise_level(y)) < 0.05
     clean, _ = multisine(2000, 0)
     assert cutoff_frequency(clean, 0.0) == 0.5
+
+
+@pytest.mark.parametrize("inner, rule", [("savgol", "noise floor, at most the window"), ("butterworth", "noise floor, at least"),
+                                         ("savgol(window=15)", "given")])
+def test_the_band_kept_estimator_says_how_its_window_was_chosen(inner, rule):
+    """The weak form's estimator (:class:`~msam_torch.derivatives.InBand`) chooses a window or cut-off
+    the user did not give; the record's provenance says so (before: ``given``)."""
+    estimator = {"savgol": SavitzkyGolay(), "butterworth": Butterworth(), "savgol(window=15)": SavitzkyGolay(window=15)}[inner]
+    _, y = multisine(2000, 0)
+    info = InBand(estimator, 0.03).estimate(np.arange(y.size, dtype=float), y, 1, "y").info
+    assert info["window_rule"].startswith(rule), info

@@ -485,3 +485,19 @@ def test_diagnose_options_out_of_range_name_the_option(option, value, message):
         DiagnoseOptions(**{option: value})
     assert message in str(raised.value)
     DiagnoseOptions(relative=1.0, damping=0.0, absolute=0, bootstrap=0, half_width=None, solver_step=None)
+
+
+def test_an_equation_left_inconclusive_beside_an_explained_one_is_in_the_verdict():
+    """One equation explained, another inconclusive: the report's verdict names both and gives the
+    inconclusive one's reasons (before: the explained one alone, and no reason)."""
+    gap = lambda target, kind, effect, reasons: EquationGap(
+        target=target, significant=effect is not None, verdict_kind=kind, effect=effect, hypothesis="", exponent=None,
+        catalogue_exponent=None, start_equation="", retuned_equation="", adapted_equation="", confidence={},
+        improvement={}, structure_left=0.0, components=[], ranking=[], where={}, estimator={},
+        checks={"reasons": reasons})
+    explained = gap("p_ddot", Verdict.EXPLAINED, "Coulomb friction", [])
+    undecided = gap("phi_ddot", Verdict.INCONCLUSIVE, None, ["not told apart from power-law damping (p = 0.057)"])
+    kind, text, reasons = overall((explained, undecided), True, True)
+    assert kind is Verdict.EXPLAINED
+    assert text == "gap explained by Coulomb friction in p_ddot; phi_ddot inconclusive"
+    assert reasons == ["phi_ddot: not told apart from power-law damping (p = 0.057)"]

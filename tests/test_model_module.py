@@ -128,12 +128,25 @@ def test_a_run_judged_by_simulation_gives_its_retuned_stage(harmonic):
         simulated.model("adapted_tuned")
 
 
-def test_print_shows_the_equations_as_the_result_prints_them(harmonic):
-    """``print(model)`` shows each stage's equation in the result's notation (before: ``StateModel()``)."""
+def test_print_shows_the_equations_without_a_diagnosis_unadjusted_copies(harmonic):
+    """``print(model)`` shows each equation to four digits (before: ``StateModel()``); a diagnosis's
+    model prints no switched-off copy, zero constant or ``|1|^0`` factor (only its four terms)."""
+    from msam_torch.diagnose import DiagnoseOptions, diagnose
+
     result, _ = harmonic
-    entry = result.equations[0]
-    assert str(result.model("adapted")) == f"StateModel({entry.equation})"
-    assert str(result.model("retuned")) == f"StateModel({entry.theta_tuning['start']['equation']})"
+    model = result.model("adapted")
+    printed = str(model)
+    assert printed.startswith("StateModel(x_ddot = ") and printed.endswith(")")
+    rhs = sympy.sympify(printed[len("StateModel(x_ddot = "):-1])
+    (equation,) = model.to_sympy()
+    names = sorted(equation.rhs.free_symbols, key=str)
+    ours, shown = sympy.lambdify(names, equation.rhs), sympy.lambdify(names, rhs)
+    for point in np.random.default_rng(0).uniform(-3, 3, (10, len(names))):
+        assert shown(*point) == pytest.approx(ours(*point), rel=1e-3)
+    report = diagnose("configs/msd_coulomb.yaml", options=DiagnoseOptions(bootstrap=0, free_run=False))
+    shown = str(report.model("adapted"))
+    assert "sign(0)" not in shown and "Abs(1)" not in shown
+    assert len(sympy.Add.make_args(sympy.sympify(shown.split(" = ")[1][:-1]))) == 4  # u, x, x_dot and the effect
 
 
 def test_an_exponent_that_rounds_to_zero_prints_without_a_sign():

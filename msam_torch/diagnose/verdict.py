@@ -138,8 +138,9 @@ def overall(gaps: Sequence, significant: bool, name_targets: bool,
             free_run: dict | None = None) -> tuple[Verdict, str, list[str]]:
     """The report's verdict from its equations' (:class:`~.report.EquationGap`) and the free runs:
     inconclusive when :func:`free_run_reasons` finds any; else every explained equation's
-    (``in <target>`` when ``name_targets``); else inconclusive when an equation is; else not
-    explained when ``significant``; else no gap. Returns the kind, its text and the reasons."""
+    (``in <target>`` when ``name_targets``), followed by the equations left inconclusive and their
+    reasons; else inconclusive when an equation is; else not explained when ``significant``; else
+    no gap. Returns the kind, its text and the reasons."""
     explained = [g for g in gaps if g.verdict_kind is Verdict.EXPLAINED]
     undecided = [g for g in gaps if g.verdict_kind is Verdict.INCONCLUSIVE]
     kind = (Verdict.EXPLAINED if explained else Verdict.INCONCLUSIVE if undecided
@@ -147,11 +148,11 @@ def overall(gaps: Sequence, significant: bool, name_targets: bool,
     reasons = free_run_reasons(free_run or {}, kind)
     if reasons:
         return Verdict.INCONCLUSIVE, Verdict.INCONCLUSIVE.text(), reasons
+    undecided_reasons = [f"{g.target}: {r}" for g in undecided for r in g.checks.get("reasons", [])]
     if explained:
-        return kind, "; ".join(f"{g.verdict} in {g.target}" if name_targets else g.verdict for g in explained), []
-    if undecided:
-        return kind, kind.text(), [f"{g.target}: {r}" for g in undecided for r in g.checks.get("reasons", [])]
-    return kind, kind.text(), []
+        parts = [f"{g.verdict} in {g.target}" if name_targets else g.verdict for g in explained]
+        return kind, "; ".join(parts + [f"{g.target} inconclusive" for g in undecided]), undecided_reasons
+    return kind, kind.text(), undecided_reasons
 
 
 def demoted(gaps: Sequence, kind: Verdict, reasons: list[str]) -> tuple:

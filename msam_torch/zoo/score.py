@@ -96,9 +96,9 @@ def score(report, truth: dict) -> dict:
     if free:
         nrmse = {k: float(v) if v is not None else math.inf for k, v in free.items()}
         diverged = any(not math.isfinite(v) or v > DIVERGED for v in nrmse.values())
-        out["diverged_beside_verdict"] = diverged and "inconclusive" not in r["verdict"]
+        out["diverged_beside_verdict"] = diverged and r["verdict_kind"] != Verdict.INCONCLUSIVE
         own = rests_on(Verdict(r["verdict_kind"]))
-        out["own_run_diverged"] = ("inconclusive" not in r["verdict"]
+        out["own_run_diverged"] = (r["verdict_kind"] != Verdict.INCONCLUSIVE
                                    and not (math.isfinite(nrmse[own]) and nrmse[own] <= DIVERGED))
         out["retuned_no_worse"] = (math.isfinite(nrmse["retuned"])
                                    and nrmse["retuned"] <= (1 + NO_WORSE_SLACK) * nrmse["start"])
