@@ -145,7 +145,7 @@ class InBand:
         return self.inner.name
 
     def estimate(self, t, y, order, where="signal") -> Estimate:
-        chosen, rule = self.inner.choose(False) if isinstance(self.inner, Auto) else self.inner, None  # rule: not given
+        chosen, rule = self.inner.choose(False) if isinstance(self.inner, Auto) else self.inner, None
         if takes(chosen, "window") and chosen.window is None:
             degree = LOESS_DEGREE if isinstance(chosen, Loess) else max(SAVGOL_DEGREE, order)
             window = choose_window(np.asarray(y, dtype=float), degree)[0]

@@ -132,7 +132,8 @@ def kinking(spec: ModelSpec, theta: Mapping[str, torch.Tensor] | None = None) ->
     return out
 
 
-def refitted(kinks: Mapping[str, Kink], signals: Mapping[str, torch.Tensor], half_width: float) -> dict[str, torch.Tensor]:
+def refitted(kinks: Mapping[str, Kink], signals: Mapping[str, torch.Tensor],
+             half_width: float) -> dict[str, torch.Tensor]:
     """The theta of each kinking equation's starting components re-fitted to ``signals`` by least
     squares in the weak form (test functions of ``half_width``): the input coefficients that give a
     kink's jump, and the state's that gives its slope, as the record gives them rather than the
