@@ -32,7 +32,7 @@ from .derivatives import DerivativeEstimator, InBand
 from .errors import DataError, MSAMError
 from .simulation import EquationModel
 from .spec import ModelSpec, derivative_name, split_derivative
-from .weak import TestFunctions, half_width_for, target_source
+from .weak import TestFunctions, half_width_for, weak_data
 
 SAMPLES_PER_PERIOD = 7  # decimation keeps the band edge below 1/7 of the sampling rate
 DERIVATIVE_MARGIN = 2.0  # a derivative's smoother passes twice the band edge
@@ -142,18 +142,16 @@ def refitted(kinks: Mapping[str, Kink], signals: Mapping[str, torch.Tensor],
     out = {}
     for kink in kinks.values():
         equation = kink.model.equation
-        if not equation.signals - {equation.target} <= set(signals):
+        if not equation.signals <= set(signals):
             continue
-        source, order = target_source(equation, signals)
-        y = (-1) ** order * tests.integrate_signal(signals[source], order)
-        values = {k: v.unsqueeze(0) for k, v in signals.items()}
-        columns = torch.stack([torch.as_tensor(c.term(values), dtype=y.dtype).expand(values["t"].shape)[0]
-                               for c in equation.components], -1)
-        rows = tests.integrate(columns)
+        data = weak_data(equation, signals, tests, normalize="none")
+        rows = torch.cat([data.unadjusted, data.fixed_components], -1)[0]  # (M, K): adjustable, then fixed
         scale = rows.norm(dim=0)
         if rows.shape[0] <= rows.shape[1] or not bool(torch.all(scale > 0) and torch.isfinite(rows).all()):
             continue
-        theta = torch.linalg.lstsq(rows / scale, y.unsqueeze(-1)).solution.squeeze(-1) / scale
+        fitted = torch.linalg.lstsq(rows / scale, data.y[0].unsqueeze(-1)).solution.squeeze(-1) / scale
+        theta = torch.empty_like(fitted)
+        theta[list(equation.adjustable) + list(equation.fixed)] = fitted
         if bool(torch.isfinite(theta).all()):
             out[equation.target] = theta.cpu().double()
     return out
