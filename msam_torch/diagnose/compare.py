@@ -10,7 +10,8 @@ import torch
 
 from ..errors import MSAMError
 from ..simulation import EquationModel, simulate_equations as simulate
-from ..simulation.solver import TABLEAUS
+from ..simulation.equations import fastest_decay
+from ..simulation.solver import STABILITY, TABLEAUS
 from torchdiffeq._impl.odeint import SOLVERS  # the method names odeint accepts (no public list)
 from ..spec import Equation, ModelSpec
 from . import measures
@@ -23,6 +24,9 @@ PER_PERIOD = 0.04  # a fixed step starts at most at this share of the band's per
 STEPS = 500  # ... and at most at this share of the record
 CHECK_STEPS = 1000  # the step is checked over this many of its steps from the record's start
 HALVINGS = 2  # a fixed step is halved at most this often (then the runs are marked not converged)
+STABLE_SHARE = 0.9  # twice a fixed step's start is at most this share of the step the fastest decaying mode allows
+STIFF_SUBSTEPS = 16  # ... and at least at this share of the sample period (then the model is too stiff for it)
+MODES_AT = 64  # record samples the modes are computed at
 DIVERGED = 10.0  # a free run this many standard deviations off the measurement (NRMSE) has diverged
 
 
@@ -109,8 +113,7 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
                    starts: dict, held: tuple[str, ...]) -> tuple:
     """Free runs from each set's first state (``starts[label]``, else the set's) under its inputs;
     sets on the same time grid are integrated in one batch. A fixed-step solver without a given step starts at
-    :data:`PER_PERIOD` of the band's period (at most 1/:data:`STEPS` of the record; below the sample
-    period, its nearest divisor) and halves it
+    :func:`_first_step` (a share of the band's period within the models' stability interval) and halves it
     until the three point models' runs at the step and at twice it agree (:func:`converged`) over
     the first :data:`CHECK_STEPS` steps, at most :data:`HALVINGS` times (each set's ``solver``
     entry says whether they agreed, and ``unconverged`` which did not): the step follows the
@@ -128,14 +131,15 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
         batch = [_concat([batches[label][e] for label in group]) for e in range(len(batches[group[0]]))]
         step, agree, trajectory = options.solver_step, torch.ones(3 * len(group), dtype=torch.bool), None
         auto, dt = fixed and step is None, float(t[1] - t[0])
+        initial = {x: torch.cat([_first_sample(x, starts.get(label), sets[label].signals).expand(n)
+                                 for label, n in zip(group, sizes)]) for x in spec.states}
+        stiff = False
         if auto:
-            step = min(float(t[-1] - t[0]) / STEPS, PER_PERIOD / band)
-            step = dt / round(dt / step) if step < dt else step  # a held input switches between steps
+            step, stiff = _first_step(spec, {label: sets[label] for label in group}, batches, starts, options.solver,
+                                      band, t)
         seen = lambda u: anti_aliased(u, dt, 2 * step if auto else step) if fixed else u
         inputs = {u: torch.cat([seen(sets[label].signals[u]).expand(n, -1) for label, n in zip(group, sizes)])
                   for u in spec.inputs}
-        initial = {x: torch.cat([_first_sample(x, starts.get(label), sets[label].signals).expand(n)
-                                 for label, n in zip(group, sizes)]) for x in spec.states}
         views = {label: recorded(sets[label]) for label in group}
         scale = {x: max(float(views[label][x].abs().max()) for label in group) for x in spec.states}
         atol = torch.tensor([options.atol * max(scale[x], torch.finfo(t.dtype).tiny) for x in spec.states],
@@ -165,13 +169,41 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
             trajectory = run(batch, step, t.shape[0])
         for k, label in enumerate(group):
             settled = agree[3 * k:3 * k + 3].tolist()
-            steps[label] = {"method": options.solver, "step": step, "converged": all(settled),
-                            "unconverged": [m for m, ok in zip(measures.MODELS, settled) if not ok],
+            steps[label] = {"method": options.solver, "step": step, "converged": all(settled) and not stiff,
+                            "unconverged": [m for m, ok in zip(measures.MODELS, settled) if not ok or stiff],
                             **({} if fixed else {"rtol": options.rtol, "atol": options.atol})}
         offsets = [0] + torch.tensor(sizes).cumsum(0).tolist()
         for k, label in enumerate(group):
             result[label] = {x: v[offsets[k]:offsets[k + 1]] for x, v in trajectory.items()}
     return result, steps
+
+
+def _first_step(spec: ModelSpec, sets: dict, batches: dict, starts: dict, method: str, band: float,
+                t: torch.Tensor) -> tuple[float, bool]:
+    """A fixed step's start: :data:`PER_PERIOD` of the band's period, at most 1/:data:`STEPS` of the
+    record and half :data:`STABLE_SHARE` of the step the fastest decaying mode of the three point
+    models allows (:func:`~msam_torch.simulation.equations.fastest_decay` along the records: the
+    check's run at twice the step is stable too), at
+    least 1/:data:`STIFF_SUBSTEPS` of the sample period (below it the models are too stiff for a
+    fixed step: the second value); below the sample period, its nearest divisor, so that a held
+    input switches between steps."""
+    dt = float(t[1] - t[0])
+    decay = max(float(fastest_decay(spec, [_first(m, 3) for m in batches[label]],
+                                    _points(spec, sets[label], starts.get(label))).max()) for label in sets)
+    stable = STABLE_SHARE * STABILITY[method] / (2 * decay) if decay > 0 else math.inf  # the check's run at 2 h too
+    step = min(float(t[-1] - t[0]) / STEPS, PER_PERIOD / band, stable)
+    stiff = step < dt / STIFF_SUBSTEPS
+    step = max(step, dt / STIFF_SUBSTEPS)
+    return (dt / round(dt / step) if step < dt else step), stiff
+
+
+def _points(spec: ModelSpec, dataset, start: dict | None) -> dict:
+    """:data:`MODES_AT` evenly spaced samples of the time, every state (from ``start``, the
+    diagnosis's view of the record, where it holds it) and every input of ``dataset``."""
+    def sampled(v):
+        return v[torch.linspace(0, v.shape[-1] - 1, MODES_AT, device=v.device).round().long()]
+    view = {**dataset.signals, **(start or {})}
+    return {name: sampled(view[name]) for name in ("t", *spec.states, *spec.inputs) if name in view}
 
 
 def _first_sample(state: str, *views: dict | None) -> torch.Tensor:

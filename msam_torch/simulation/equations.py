@@ -89,12 +89,8 @@ def simulate_equations(spec: ModelSpec, models: Sequence[EquationModel], t: torc
         if derivative not in spec.states and derivative not in targets:
             raise MSAMError(f"model.equations: cannot simulate: state {name!r} has no equation for {derivative!r} and "
                             "no state holds it (add the equation, or skip the free runs: --no-free-run)")
-    model = SystemModel.build(spec, equations, tuple(spec.inputs))
-    b = max(m.theta.shape[0] for m in models)
+    model, p, b = _system(spec, models)
     dtype, device = t.dtype, t.device
-    rows = [m.parameters(model) for m in models]
-    cat = lambda name: torch.cat([getattr(r, name).expand(b, -1) for r in rows], -1)
-    p = Parameters(cat("gamma"), cat("choice"), cat("theta"), cat("theta_fixed"), rows[0].scale.expand(b, -1))
     y0 = torch.stack([torch.as_tensor(initial[s], dtype=dtype, device=device).expand(b) for s in model.states], -1)
     table = [torch.as_tensor(inputs[u], dtype=dtype, device=device) for u in model.external]
     batched = any(v.dim() == 2 for v in table)
@@ -108,3 +104,38 @@ def simulate_equations(spec: ModelSpec, models: Sequence[EquationModel], t: torc
     with torch.no_grad():
         states = simulate(model, record, p, y0, method, limits=None, span=span, step=step, rtol=rtol, atol=atol)
     return {s: states[..., i] for i, s in enumerate(model.states)}
+
+
+def fastest_decay(spec: ModelSpec, models: Sequence[EquationModel], points: Mapping[str, torch.Tensor]) -> torch.Tensor:
+    """The largest magnitude of the decaying modes of each row (B,): the eigenvalues with negative
+    real part of the Jacobian ``d(dx/dt)/dx`` of the whole model at each of the K ``points`` (``t``,
+    every simulated state and input, each (K,)), by forward mode (:func:`torch.func.jvp`), the
+    median over the points (0 without any). An explicit fixed-step solver is stable on a mode only
+    while the step times its magnitude lies within the method's interval (:data:`~.solver.STABILITY`);
+    a growing mode (positive real part) diverges at any step. The median, not the greatest: a
+    bounded law with an unbounded slope (Coulomb friction's ``w|w|^-0.9`` near ``w = 0``) makes a
+    fixed step chatter where the slope is steep, not diverge."""
+    model, p, b = _system(spec, models)
+    k = points["t"].shape[0]
+    x = torch.stack([points[s] for s in model.states], -1).repeat(b, 1, 1)  # (B, K, S)
+    external = torch.stack([points[u] for u in model.external], -1).expand(b, k, -1) if model.external \
+        else x.new_zeros(b, k, 0)
+    rhs = model.rhs(p, x.dtype, x.device)
+    rate = lambda x: rhs(model.values(points["t"].expand(b, k), x, external), x)
+    eye = torch.eye(x.shape[-1], dtype=x.dtype, device=x.device)
+    with torch.no_grad():
+        columns = [torch.func.jvp(rate, (x,), (e.expand_as(x).clone(),))[1] for e in eye]
+    eigenvalues = torch.linalg.eigvals(torch.stack(columns, -1).nan_to_num(0.0, 0.0, 0.0))  # (B, K, S)
+    decaying = torch.where(eigenvalues.real < 0, eigenvalues.abs(), torch.zeros_like(eigenvalues.real))
+    return decaying.amax(-1).median(-1).values
+
+
+def _system(spec: ModelSpec, models: Sequence[EquationModel]) -> tuple[SystemModel, Parameters, int]:
+    """The one ODE model of ``models``' equations (every input external) and their parameters,
+    rows broadcast to the largest batch B."""
+    model = SystemModel.build(spec, tuple(m.equation for m in models), tuple(spec.inputs))
+    b = max(m.theta.shape[0] for m in models)
+    rows = [m.parameters(model) for m in models]
+    cat = lambda name: torch.cat([getattr(r, name).expand(b, -1) for r in rows], -1)
+    return model, Parameters(cat("gamma"), cat("choice"), cat("theta"), cat("theta_fixed"),
+                             rows[0].scale.expand(b, -1)), b

@@ -29,6 +29,9 @@ TABLEAUS = {
     "midpoint": ((0, 3), ((), (0.5,)), (0.0, 1.0)),
     "rk4": ((0, 2, 4, 6), ((), (1 / 3,), (-1 / 3, 1.0), (1.0, -1.0, 1.0)), (0.125, 0.375, 0.375, 0.125)),
 }
+# The real interval of each tableau's stability region: a decaying mode lambda stays stable for
+# h |lambda| within it (every 4-stage fourth-order method has the stability polynomial of rk4).
+STABILITY = {"euler": 2.0, "midpoint": 2.0, "rk4": 2.785}
 SERIAL_ELEMENTS = 32768  # batches of fewer state values are simulated on one thread (torch's grain size)
 READ_BEFORE = 1e-6  # a step's last stage reads the external signals this share of a step before it
 
