@@ -265,6 +265,8 @@ def diagnosis(path: Path, output: str, ts: float, y_std: float, unit: float) -> 
                f"of {g.confidence['bootstrap_trials']})" for g in report.equations if g.significant]
     return {"verdict": report.verdict, "effects": effects, "adapted": [g.adapted_equation for g in report.equations],
             "retuned": [g.retuned_equation for g in report.equations],
+            "at_catalogue_exponent": [g.naming["at_catalogue_exponent"] for g in report.equations
+                                      if g.naming and g.naming.get("at_catalogue_exponent")],
             "rmse": {m: float(v) * y_std * unit for m, v in nrmse.items()}}
 
 
@@ -290,6 +292,7 @@ def run_case(name: str, baselines: bool, out: list[str]) -> None:
     rows["msam diagnose, naive config: adapted [own free run]"] = {first: d["rmse"]["adapted"]}
     notes.append(f"- diagnose verdict: **{d['verdict']}**; " + ("; ".join(d["effects"]) or "no effect named"))
     notes += [f"  - theta re-fitted: `{a}`; adapted: `{b}`" for a, b in zip(d["retuned"], d["adapted"])]
+    notes += [f"  - named effect at its catalogue exponent (theta re-fitted): `{e}`" for e in d["at_catalogue_exponent"]]
 
     for label_run, path, overrides in (("msam run, naive config", naive, []),
                                        ("msam run, hand-made config", hand, list(case.hand_overrides))):

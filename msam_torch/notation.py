@@ -25,10 +25,11 @@ def format_component(equation: Equation, index: int, function: int | None, gamma
 
 
 def format_equation(target: str, thetas: list[float], terms: list[str]) -> str:
-    """``x_ddot = -26.13 x_dot|x_dot|^1.000 - 346.7 x|x|^2.000 + 0.002667 u``."""
+    """``x_ddot = -26.13 x_dot|x_dot|^1.000 - 346.7 x|x|^2.000 + 0.002667 u - 0.5`` (a constant term
+    ``1`` is its value alone)."""
     parts = []
     for theta, term in zip(thetas, terms):
         sign = "-" if theta < 0 else "+"
-        body = f"{_number(abs(theta))} {term}"
+        body = _number(abs(theta)) if term == "1" else f"{_number(abs(theta))} {term}"  # a constant: its value
         parts.append(f"{sign} {body}" if parts else (f"-{body}" if theta < 0 else body))
     return f"{target} = " + " ".join(parts)

@@ -208,7 +208,7 @@ class WithheldEffect:
     system: str
     held_out: str
     model: dict
-    expected: str  # catalogue name, 'no significant gap' or 'gap not explained by the candidate set'
+    expected: str  # catalogue name, 'no significant gap' or 'gap not explained by a catalogued effect'
     kind: str  # 'in_catalogue', 'null' or 'out_of_catalogue'
     active: Callable[[Mapping[str, torch.Tensor]], torch.Tensor] | None = None
 
@@ -259,10 +259,10 @@ WITHHELD: dict[str, WithheldEffect] = {
         "Torricelli outflow", "in_catalogue"),
     "msd_linear": WithheldEffect("msd_linear", "msd_linear_heldout", _MSD_MODEL, "no significant gap", "null"),
     "msd_clearance": WithheldEffect("msd_clearance", "msd_clearance_heldout", _MSD_MODEL,
-                                    "gap not explained by the candidate set", "out_of_catalogue",
+                                    "gap not explained by a catalogued effect", "out_of_catalogue",
                                     active=lambda s: s["x"].abs() > 0.6),
     "msd_input_dead_zone": WithheldEffect("msd_input_dead_zone", "msd_input_dead_zone_heldout", _MSD_MODEL,
-                                          "gap not explained by the candidate set", "out_of_catalogue"),
+                                          "gap not explained by a catalogued effect", "out_of_catalogue"),
     "msd_backlash": WithheldEffect("msd_backlash", "msd_backlash_heldout", _MSD_MODEL,
-                                   "gap not explained by the candidate set", "out_of_catalogue"),
+                                   "gap not explained by a catalogued effect", "out_of_catalogue"),
 }

@@ -112,7 +112,7 @@ def test_diagnosis_end_to_end_report(tmp_path):
         assert key in saved["equations"][0]
     for key in ("one_step", "free_run"):
         assert set(saved["measures"][key]) == {"train", "held_out"}
-    assert set(saved["measures"]["free_run"]["held_out"]["gap_closed_interval"]) == {"retuning", "effect"}
+    assert set(saved["measures"]["free_run"]["held_out"]["gap_closed_interval"]) == {"retuning", "effect", "effect_on_retuned"}
     markdown = (tmp_path / "report.md").read_text()
     assert "gap explained by Coulomb friction" in markdown
     for png in ("free_run_held_out.png", "free_run_train.png", "x_ddot_residual_time.png", "x_ddot_residual_vs_state.png"):

@@ -78,6 +78,6 @@ def test_a_wrong_data_argument_is_an_error_naming_it():
 def test_verdicts_render_the_report_text():
     assert Verdict.EXPLAINED.text("Coulomb friction") == "gap explained by Coulomb friction"
     assert Verdict.NO_GAP.text() == "no significant gap"
-    assert Verdict.NOT_EXPLAINED.text() == "gap not explained by the candidate set"
+    assert Verdict.NOT_EXPLAINED.text() == "gap not explained by a catalogued effect"
     assert json.dumps({k.name: k for k in Verdict}) == ('{"EXPLAINED": "explained", "NO_GAP": "no_gap", '
                                                          '"NOT_EXPLAINED": "not_explained", "INCONCLUSIVE": "inconclusive"}')

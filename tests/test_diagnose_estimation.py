@@ -227,7 +227,7 @@ def test_a_power_law_as_good_as_a_catalogued_effect_is_inconclusive_and_one_bett
     """The best fit has no catalogued name: when an effect with a name (here one held at its
     catalogue exponent) predicts the out-of-sample rows as well, the data cannot tell which law it
     is, and the verdict says so; when every named rival is told apart (or there is none), the gap
-    is not explained by the candidate set."""
+    is not explained by a catalogued effect."""
     sure, clean = {"win_frequency": 1.0, "apart_p": 1.0, "rival": "radiation at its catalogue exponent"}, {"failed": []}
     kind, reasons = equation_verdict(True, NOT_CATALOGUED, sure, 0.0, clean, DiagnoseOptions())
     assert kind is Verdict.INCONCLUSIVE and "not told apart from radiation at its catalogue exponent" in reasons[0]

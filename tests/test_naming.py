@@ -2,6 +2,8 @@
 (msam_torch.diagnose.catalogue, .naming): first-order speed, population and thermal equations;
 no name without declared quantities; a config's own effect; power-law damping of total exponent
 0.7; config errors naming the key."""
+import ast
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -17,6 +19,7 @@ from msam_torch.diagnose.hypotheses import Fitted
 from msam_torch.diagnose.naming import Naming, half_width, repeated
 from msam_torch.errors import ConfigError
 from msam_torch.spec import ModelSpec
+from msam_torch.zoo.score import parse_equation
 
 OPTIONS = DiagnoseOptions(bootstrap=8, free_run=False)
 
@@ -104,6 +107,18 @@ def test_named_from_declared_quantities_and_never_wrong_without(case, name, tota
     assert bare.verdict_kind is not Verdict.EXPLAINED and bare.effect in (None, "power law, no catalogued effect")
 
 
+def test_a_named_effect_is_also_given_at_its_catalogue_exponent():
+    """The drive's Coulomb friction (``-1.0 tanh(w / 0.01)``): beside the free fit, the report gives
+    the same hypothesis held at the catalogue's exponent with theta re-fitted, whose coefficient is
+    the friction force of the catalogue's law (here within 3 % of the truth's 1.0)."""
+    model, frames, quantities = drive()
+    gap = run(model, frames, quantities)
+    assert gap.effect == "Coulomb friction", gap.naming
+    pinned = parse_equation(gap.naming["at_catalogue_exponent"])
+    assert pinned["w|w|^-1.000"] == pytest.approx(-1.0, rel=0.03), gap.naming["at_catalogue_exponent"]
+    assert pinned["i"] == pytest.approx(2.0, rel=0.03) and pinned["w"] == pytest.approx(-0.5, rel=0.05)
+
+
 def held_heated_body(seed: int) -> pd.DataFrame:
     """The heated body under a heater switched between 600 and 1200 W every 25 samples (held,
     :mod:`msam_torch.hold`), integrated sample by sample."""
@@ -185,6 +200,38 @@ def test_an_exchange_is_named_where_its_reference_drifts():
     assert gap.verdict_kind is Verdict.EXPLAINED and gap.effect == "radiation", gap.naming
     assert gap.naming["total_exponent"] == pytest.approx(4.0, abs=0.05)
     assert "Ta^2" in gap.hypothesis
+
+
+def room():
+    """A room in degrees Celsius losing heat by natural convection, ``C T' = Q - h (T - Ta)|T - Ta|^0.25``,
+    its starting model linear in the temperature difference (one component ``T - Ta``)."""
+    rhs = lambda t, y, u: [(u["Q"] - 0.8 * (y[0] - u["Ta"]) * abs(y[0] - u["Ta"]) ** 0.25) / 2.0]
+    inputs = lambda p: {"Q": multisine((0.013, 0.031, 0.07), 4.0, 9.0, phase=p),
+                        "Ta": multisine((0.005, 0.021), 2.0, 5.0, phase=2 * p)}
+    frames = [record(rhs, [18.0], np.linspace(0.0, 400.0, 2001), inputs(p), ["T"]) for p in (0.0, 1.0)]
+    model = {"states": ["T"], "inputs": ["Q", "Ta"], "parameters": {"h": 1.2, "c": 0.5},
+             "equations": [{"target": "T_dot", "components": [{"term": "T - Ta", "theta": "-h * c"},
+                                                               {"term": "Q", "theta": "c", "adjustable": False}],
+                            "adjustments": ["abs(T - Ta)"]}]}
+    declared = {"T": {"quantity": "temperature", "unit": "degC"}, "Ta": {"quantity": "temperature", "unit": "degC"},
+                "Q": "heat_flow"}
+    return model, frames, declared
+
+
+def test_a_difference_of_two_temperatures_reads_as_a_temperature_difference():
+    """``T - Ta`` of two declared temperatures is a temperature difference (an offset scale cancels
+    in it), its power in the component ``T - Ta`` is 1: the fitted ``(T - Ta)|T - Ta|^0.25`` is
+    natural convection, total exponent 1.25 (before, the catalogue read powers of one signal only:
+    "no catalogued effect"); a difference of two quantities is no quantity."""
+    model, frames, declared = room()
+    gap = run(model, frames, declared)
+    assert gap.verdict_kind is Verdict.EXPLAINED and gap.effect == "natural convection", gap.naming
+    assert gap.naming["total_exponent"] == pytest.approx(1.25, abs=0.05) and gap.naming["on"] == "T - Ta"
+    spec = ModelSpec.from_config(load_config({"model": {**model, "quantities": declared}, "data": {"time": "t"}}).model)
+    roles = catalogue.Roles.of_equation(spec, spec.equations[0])
+    expression = lambda text: ast.parse(text, mode="eval").body
+    assert roles.of_expression(expression("T - Ta")) == "temperature_difference"
+    assert roles.of_expression(expression("T - Q")) is None and roles.of_expression(expression("T + Ta")) is None
 
 
 def test_power_law_damping_of_total_exponent_0_7_reported_with_its_interval():
@@ -348,9 +395,9 @@ def test_a_name_is_told_apart_from_another_entry_at_its_catalogue_exponent():
     assert alone["rival"] is None and alone["apart_p"] == 0.0
     wobble = 0.05 * torch.cos(torch.linspace(0, 200, 400, dtype=torch.float64))
     close = summary(*args, Pinned(evidence(torch.stack([base + wobble, 0.9 * base])),
-                                  ["quadratic drag", "power-law damping"], ["y = drag", "y = damping"]))
+                                  ["quadratic drag", "power-law damping"], ["y = drag", "y = damping"], [1, 1]))
     assert close["rival"] == "quadratic drag at its catalogue exponent" and close["apart_p"] > 0.2
     assert close["rival_equation"] == "y = drag"  # the pinned rival's own fit
-    far = summary(*args, Pinned(evidence(torch.stack([2 * base])), ["quadratic drag"], ["y = drag"]))
+    far = summary(*args, Pinned(evidence(torch.stack([2 * base])), ["quadratic drag"], ["y = drag"], [1]))
     assert far["rival"] == "quadratic drag at its catalogue exponent" and far["apart_p"] == 0.5**10  # every block
     assert alone["rival_equation"] is None

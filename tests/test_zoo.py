@@ -191,7 +191,7 @@ def test_wrong_names_are_counted_on_every_kind_of_case():
     assert score.score(report(("w_dot", "gap explained by power-law damping")), truth)["wrong_name"]
     assert score.score(report(("w_dot", "gap explained by quadratic drag"), ("i_dot", "gap explained by quadratic drag")),
                        truth)["wrong_name"]  # the right name in another equation as well
-    assert not score.score(report(("w_dot", "gap not explained by the candidate set")), truth)["wrong_name"]
+    assert not score.score(report(("w_dot", "gap not explained by a catalogued effect")), truth)["wrong_name"]
     for kind in ("null", "out_of_catalogue"):
         other = {"kind": kind, "name": None, "theta": {}}
         assert score.score(report(("w_dot", "gap explained by Coulomb friction")), other)["wrong_name"]

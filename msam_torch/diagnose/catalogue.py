@@ -12,6 +12,7 @@ says so. Names never come from variable names.
 """
 from __future__ import annotations
 
+import ast
 from dataclasses import dataclass, field
 from functools import cache
 from importlib.resources import files
@@ -19,7 +20,7 @@ from importlib.resources import files
 import yaml
 from pydantic import BaseModel, ConfigDict
 
-from ..config import EffectConfig, validate
+from ..config import QUANTITIES, EffectConfig, validate
 from ..expressions import Expression
 from ..spec import Equation, ModelSpec, derivative_name, split_derivative
 from .hypotheses import holds_constant
@@ -67,6 +68,18 @@ class Roles:
     def of(self, signal: str) -> str | None:
         return self.quantities.get(signal)
 
+    def of_expression(self, node: ast.AST) -> str | None:
+        """The quantity of a signal, or of the difference ``a - b`` of two signals of one quantity
+        ``q`` where ``q_difference`` is a quantity (``T - Ta``: a temperature difference)."""
+        if isinstance(node, ast.Name):
+            return self.of(node.id)
+        if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Sub) and \
+                isinstance(node.left, ast.Name) and isinstance(node.right, ast.Name):
+            q = self.of(node.left.id)
+            return f"{q}_difference" if q is not None and q == self.of(node.right.id) \
+                and f"{q}_difference" in QUANTITIES else None
+        return None
+
     def offset_scale(self, signal: str | None) -> str | None:
         """The declared unit of a temperature ``signal`` whose zero is not absolute (degC, degF):
         a power of it is no power of the temperature that radiation and other laws read."""
@@ -108,8 +121,9 @@ class Roles:
 
 
 def power_in(term: Expression, signal: str) -> float | None:
-    """The power of ``signal`` in the component ``term``: 1 (the signal itself), 0 (absent), else None."""
-    if term.text == signal:
+    """The power of ``signal`` (a name, or an expression's text as :func:`ast.unparse` writes it) in
+    the component ``term``: 1 (the signal itself), 0 (absent), else None."""
+    if ast.unparse(term.tree) == signal:
         return 1.0
     return 0.0 if signal not in term.names else None
 
@@ -131,9 +145,11 @@ def read(roles: Roles, equation: Equation, component: int, function: int) -> Rea
     base, order = split_derivative(equation.target)
     state = derivative_name(base, order - 1)
     term = equation.components[component].term
-    signal = f.inner_text if f.is_magnitude and f.inner_text.isidentifier() else None
+    inner = f.tree.args[0] if f.is_magnitude else None
+    signal = f.inner_text if inner is not None and (f.inner_text.isidentifier() or roles.of_expression(inner)) else None
     power = power_in(term, signal) if signal is not None else None
-    return Reading(roles.of(state), roles.of(term.text), roles.of(signal) if signal else None, signal, power)
+    return Reading(roles.of(state), roles.of_expression(term.tree), roles.of_expression(inner) if signal else None,
+                   signal, power)
 
 
 def consistent(catalogue: tuple[EffectConfig, ...], reading: Reading, total: float, half_width: float,

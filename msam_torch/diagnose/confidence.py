@@ -62,12 +62,13 @@ class Evidence:
 
 @dataclass(frozen=True)
 class Pinned:
-    """The hypotheses held at other entries' catalogue exponents: their :class:`Evidence`, entry
-    names and fitted equations."""
+    """The hypotheses held at catalogue entries' exponents: their :class:`Evidence`, entry names,
+    fitted equations and the hypotheses they were pinned from."""
 
     evidence: Evidence
     names: list[str]
     equations: list[str]
+    hypotheses: list[int]  # the hypothesis each was pinned from
 
 
 def resamples(blocks: int, generator: torch.Generator) -> torch.Tensor:
@@ -139,3 +140,14 @@ def summary(rmse: torch.Tensor, names: list[str], best: int, is_significant: boo
             "rival_equation": None if rival is None else equations[rival],
             "win_frequency": frequency, "bootstrap_trials": len(trial_outcomes),
             "outcomes": {o: trial_outcomes.count(o) for o in sorted(set(trial_outcomes))}}
+
+
+def at_catalogue_exponent(pinned: Pinned | None, form: set[int], name: str) -> str | None:
+    """The fitted equation of the best hypothesis's form (the hypotheses ``form``: its starts) held
+    at the exponent of the entry ``name``, theta re-fitted: the named effect's coefficient in the
+    catalogue's own law (Coulomb friction's force, not the coefficient of ``|v|^-0.93``); None
+    where no such pin was fitted."""
+    if pinned is None:
+        return None
+    return next((eq for h, n, eq in zip(pinned.hypotheses, pinned.names, pinned.equations) if h in form and n == name),
+                None)

@@ -63,6 +63,7 @@ def _diagnose_once(config: Config, data: DataArgument, validation: DataArgument,
     if not isinstance(plan.evaluator, Algebraic):  # judged by simulation
         return diagnose_simulated(plan, base_dir, options, data=data, validation=validation), None
     spec, device = plan.spec, plan.device
+    _warn_repeated_terms(spec)
     total = len(spec.equations) + 2  # reading the data, each equation, comparing the models
     step(LOGGER, "diagnose", "reading the data", 0, total)
     train, held_out = resolve_datasets(config.data, spec, base_dir, plan.dtype, data, validation, plan.derivatives)
@@ -93,3 +94,17 @@ def _diagnose_once(config: Config, data: DataArgument, validation: DataArgument,
                        models=tuple(e.model for e in equations))
     models = {e.gap.target: e.model for e in equations}
     return report, lambda targets: with_effects(config, spec.equations, {t: models[t] for t in targets})
+
+
+def _warn_repeated_terms(spec) -> None:
+    """A warning per equation whose components read the same term: a re-fit identifies only the
+    sum of their theta (and splits it evenly); the diagnosis makes its own copies of a component."""
+    for equation in spec.equations:
+        seen: dict[str, list[int]] = {}
+        for i, component in enumerate(equation.components):
+            seen.setdefault(component.term.text, []).append(i + 1)
+        for term, where in seen.items():
+            if len(where) > 1:
+                LOGGER.warning("%s: components %s read the same term %s: the data identify only the sum of their "
+                               "theta (a re-fit splits it evenly); one component is enough, the diagnosis tries "
+                               "copies of it itself", equation.target, " and ".join(map(str, where)), term)

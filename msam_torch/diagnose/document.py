@@ -188,7 +188,8 @@ def _how_far(measures: dict) -> list[str]:
     for label, entry in measures.get("free_run", {}).items():
         closed = entry["gap_closed"]
         text = (f"Free-run NRMSE on the {label.replace('_', '-')} record closed by retuning theta: "
-                f"{_percent(closed['retuning'])}, by the effect: {_percent(closed['effect'])}")
+                f"{_percent(closed['retuning'])}, by the effect: {_percent(closed['effect'])} "
+                f"({_percent(closed['effect_on_retuned'])} of the theta re-fitted model's)")
         if "gap_closed_interval" in entry:
             text += f" (bootstrap 90 % interval {interval_text(*entry['gap_closed_interval']['effect'], closed['effect'], 100, ' %')})"
         md += [text + ".", ""]
@@ -215,6 +216,8 @@ def _named(naming: dict) -> list[str]:
     lines = [f"- catalogue: {naming['text']}"]
     if naming["effect"]:
         lines.append(f"- physics: {naming['description']} (reference: {naming['reference']})")
+    if naming.get("at_catalogue_exponent"):
+        lines.append(f"- at the catalogue exponent: `{naming['at_catalogue_exponent']}`")
     if naming["assumed_quantities"]:
         assumed = ", ".join(f"{s} as {q}" for s, q in naming["assumed_quantities"].items())
         lines.append(f"- assumed quantities (not declared in model.quantities): {assumed}")

@@ -115,7 +115,10 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
         effect=outcome if is_significant else None,
         hypothesis=hypotheses[winner].label(equation),
         exponent=exponent(hypotheses[winner], equation, original.gamma[0, winner]),
-        catalogue_exponent=named.catalogue_exponent(winner), naming=named.details[winner] if is_significant else None,
+        catalogue_exponent=named.catalogue_exponent(winner),
+        naming=None if not is_significant else
+        {**named.details[winner], "at_catalogue_exponent": confidence.at_catalogue_exponent(rivals, _form(hypotheses, winner),
+                                                                                             outcome)},
         start_equation=format_equation(equation.target, nominal.tolist(),
                                        [format_component(equation, i, None, None) for i in range(len(equation.components))]),
         retuned_equation=text(0), adapted_equation=text(winner), confidence=sure,
@@ -157,7 +160,14 @@ def _pinned_rivals(spec: ModelSpec, extended: Equation, equation: Equation, hypo
     crossed = crossed_errors(weak, choices[rows[keep]], fitted.gamma[0, keep], step_options, 0, q, folds, reach)
     evidence = confidence.Evidence(held_out[keep], crossed, weak.independence(reach))
     return confidence.Pinned(evidence, [pins[k].entry.name for k in keep],
-                             [fitted_text(extended, equation, choices[rows], fitted, k, weak.scale) for k in keep])
+                             [fitted_text(extended, equation, choices[rows], fitted, k, weak.scale) for k in keep],
+                             [pins[k].hypothesis for k in keep])
+
+
+def _form(hypotheses: list[Hypothesis], c: int) -> set[int]:
+    """The hypotheses of ``c``'s form (kind, component, function): its starts."""
+    key = lambda h: (h.kind, h.component, h.function)
+    return {k for k, h in enumerate(hypotheses) if key(h) == key(hypotheses[c])}
 
 
 def _components(equation: Equation, hypotheses: list[Hypothesis], rmse: torch.Tensor) -> list[dict]:

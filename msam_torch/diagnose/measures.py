@@ -31,11 +31,15 @@ def by_model(values: dict, names=MODELS) -> dict:
 
 
 def closure(start: torch.Tensor, retuned: torch.Tensor, adapted: torch.Tensor) -> dict:
-    """Shares of the starting error closed by retuning theta and by the effect (fractions of start)."""
-    scale = torch.where(torch.isfinite(start) & (start > 0), start, torch.full_like(start, torch.nan))
+    """Shares of the starting error closed by retuning theta and by the effect (fractions of start),
+    and the share of the re-fitted start's error the effect closes (``effect_on_retuned``: where the
+    start is far off, the effect's part of the starting error is small whatever it does)."""
+    nan = lambda v: torch.where(torch.isfinite(v) & (v > 0), v, torch.full_like(v, torch.nan))
+    scale, base = nan(start), nan(retuned)
     clean = lambda v: torch.where(torch.isfinite(v), v, scale)  # a diverged model closes nothing
     retuned, adapted = clean(retuned), clean(adapted)
-    return {"retuning": (scale - retuned) / scale, "effect": (retuned - adapted) / scale}
+    return {"retuning": (scale - retuned) / scale, "effect": (retuned - adapted) / scale,
+            "effect_on_retuned": (base - torch.where(torch.isfinite(adapted), adapted, base)) / base}
 
 
 def interval(samples: torch.Tensor, level: float = 0.9) -> list[float]:

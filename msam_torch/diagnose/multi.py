@@ -33,7 +33,7 @@ from .verdict import Verdict, free_run_reasons
 Adapt = Callable[[list], Config]  # the config with the effects of these equations added
 Round = Callable[[Config], "tuple[GapReport, Optional[Adapt]]"]  # one diagnosis, and how to adapt its model
 STOPPED = {Verdict.NO_GAP: "no significant gap remains",
-           Verdict.NOT_EXPLAINED: "no effect accepted: the remaining gap is not explained by the candidate set",
+           Verdict.NOT_EXPLAINED: "no effect accepted: the remaining gap is not explained by a catalogued effect",
            Verdict.INCONCLUSIVE: "no effect accepted: the diagnosis of the remaining gap is inconclusive"}
 
 

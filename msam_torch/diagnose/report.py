@@ -33,15 +33,16 @@ class EquationGap:
 
     ``significant``: an effect passed the null-verdict rule; ``verdict_kind``: the
     :class:`~.verdict.Verdict`, ``verdict`` its text ('gap explained by <effect>', 'no
-    significant gap' or 'gap not explained by the candidate set'); ``effect``: the
+    significant gap' or 'gap not explained by a catalogued effect'); ``effect``: the
     catalogue name of the best hypothesis (or 'power law, no catalogued effect'), None without a
     gap; ``hypothesis``/``exponent``: the winning hypothesis and its fitted exponent;
     ``catalogue_exponent``: the catalogue's total exponent of the named effect (a number, or
     [low, high] for a range; msam_torch/diagnose/catalogue.yaml), else None; ``naming``: for a
     significant gap, how the best hypothesis reads in the catalogue (:mod:`.naming`): ``text``,
     ``total_exponent`` +- ``half_width`` (bootstrap) ``on`` its signal, the entry's ``domain``,
-    ``description`` and ``reference``, the ``quantities`` involved and the ``assumed_quantities``
-    (undeclared, :mod:`.catalogue`); ``*_equation``: the
+    ``description`` and ``reference``, the ``quantities`` involved, the ``assumed_quantities``
+    (undeclared, :mod:`.catalogue`) and the equation ``at_catalogue_exponent`` (the best
+    hypothesis held at its entry's exponent, theta re-fitted; None without one); ``*_equation``: the
     starting, theta-retuned and adapted equations; ``confidence``: ``margin`` (held-out RMSE of
     the best hypothesis with another name, relative), ``runner_up``, the ``rival`` hardest to tell
     apart on out-of-sample rows and ``apart_p``, ``apart_p_held_out``, ``apart_p_training``
@@ -122,6 +123,8 @@ class GapReport:
             lines.append(f"  starting: {g.start_equation}")
             lines.append(f"  theta re-fitted: {g.retuned_equation}")
             lines.append(f"  adapted:  {g.adapted_equation}")
+            if g.verdict_kind == Verdict.EXPLAINED and g.naming.get("at_catalogue_exponent"):
+                lines.append(f"  at the catalogue exponent: {g.naming['at_catalogue_exponent']}")
             if g.significant and g.verdict_kind == Verdict.INCONCLUSIVE and c.get("rival_equation"):
                 lines.append(f"  as good, {c['rival']}: {c['rival_equation']}")
             if g.where["flagged_fraction"] > 0 and g.verdict_kind != Verdict.NO_GAP:  # no gap: nothing to locate
@@ -143,13 +146,13 @@ class GapReport:
             closed = {k: "-" if v is None else f"{100 * v:.0f} %" for k, v in entry["gap_closed"].items()}
             lines.append(f"free-run NRMSE ({label}): start {n['start']}, theta re-fitted {n['retuned']}, "
                          f"adapted {n['adapted']}; closed by retuning {closed['retuning']}, "
-                         f"by the effect {closed['effect']}")
+                         f"by the effect {closed['effect']} ({closed['effect_on_retuned']} of theta re-fitted's)")
         for e in self.in_turn.get("effects", []):
             lines.append(f"effect {e['step']} in {e['target']}: {e['effect']} ({exponent_text(e['exponent'])}); "
                          f"held-out RMSE {e['heldout_rmse']['before']:.4g} -> {e['heldout_rmse']['after']:.4g}")
         if self.in_turn:
             lines.append(f"effects in turn stopped: {self.in_turn['stopped']}")
-        lines.append(f"({self.seconds:.2f} s)")
+        lines.append(f"(diagnosis {self.seconds:.2f} s, reading the data and writing the report not counted)")
         return "\n".join(lines)
 
     def to_dict(self) -> dict:

@@ -29,7 +29,7 @@ class Verdict(str, Enum):
         return _TEXT[self]
 
 
-_TEXT = {Verdict.NO_GAP: "no significant gap", Verdict.NOT_EXPLAINED: "gap not explained by the candidate set",
+_TEXT = {Verdict.NO_GAP: "no significant gap", Verdict.NOT_EXPLAINED: "gap not explained by a catalogued effect",
          Verdict.INCONCLUSIVE: "inconclusive"}
 NO_WORSE = 0.01  # the re-fitted start's held-out free-run NRMSE may exceed the nominal one's by this share
 NO_INFORMATION = 1.0  # a free run whose NRMSE reaches this is no closer to the record than its mean

@@ -28,7 +28,7 @@ from ..diagnose.verdict import Verdict, rests_on
 
 THETA_TOLERANCE = 0.03
 NO_WORSE_SLACK = 0.01
-_TERM = re.compile(r"([+-])?\s*(\d[\d.]*(?:e[+-]?\d+)?)\s+(\S+)")
+_TERM = re.compile(r"([+-])?\s*(\d[\d.]*(?:e[+-]?\d+)?)\s+([^\s+-]\S*)")  # a constant (no term) is skipped
 
 
 def _as_dict(report) -> dict:
