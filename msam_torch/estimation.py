@@ -5,8 +5,9 @@ diagnosis, and for ``adapt`` in the weak form, ``adaptation.form``).
 The weak form integrates the measured signals themselves; a derivative the data do not hold
 (``x_dot`` with only ``x`` measured) is estimated with a smoother whose cut-off lies above the
 band (:class:`~msam_torch.derivatives.InBand`). The band edge ``f_b`` is the highest, over the
-signals the regressors read (the states and their derivatives, :func:`regressor_band`), of the
-frequency below which 99 % of a signal's power above its white-noise floor lies; the bump test function
+measured states (what the inputs excited in the system; :func:`record_band`, the diagnosis's rule)
+or over the signals the regressors read (:func:`regressor_band`, ``adapt``'s), of the frequency
+below which 99 % of a signal's power above its white-noise floor lies; the bump test function
 passes ``f_b`` at half amplitude for the half-width ``h = 0.6 / f_b`` (time units of the system,
 not a share of the record). Records sampled far faster than the band are low-pass filtered and
 decimated (:func:`~msam_torch.bandwidth.decimate`) to about :data:`SAMPLES` samples, never below 7
@@ -40,17 +41,23 @@ REFINE = 8  # a record with fewer samples in a half-width is interpolated at mos
 SAMPLES = 1000  # records are low-pass filtered and decimated to about this many samples
 
 
+def record_band(measured: Mapping[str, np.ndarray], inputs) -> tuple[float, dict]:
+    """The band edge (cycles per sample, :func:`~msam_torch.bandwidth.band_edge`) of a record: the
+    highest over its varying measured states, what the inputs excited in the system (over the
+    inputs too when no state varies); and each varying signal's."""
+    edges = {k: band_edge(v) for k, v in measured.items() if k != "t" and np.ptp(v) > 0}
+    states = [edge for k, edge in edges.items() if k not in inputs]
+    return max(states or edges.values(), default=0.5), edges
+
+
 def regressor_band(spec: ModelSpec, dataset: Dataset) -> tuple[float, dict]:
-    """The band edge (cycles per sample, :func:`~msam_torch.bandwidth.band_edge`) of the signals
-    the equations' regressors read: the highest over the varying states and their derivatives
-    (neither inputs nor targets), measured ones as recorded and the others as estimated in
-    ``dataset``, so that test functions pass where the adjustment functions vary (a velocity's
+    """The band edge (cycles per sample) of the signals the equations' regressors read: the
+    highest over the states and their derivatives as estimated in ``dataset`` (neither inputs nor
+    targets), so that test functions pass where the adjustment functions vary (a velocity's
     reversals, not only the position's slow swing); and each one's."""
-    skip = {equation.target for equation in spec.equations} | set(spec.inputs) | {"t"}
-    recorded = {**dataset.signals, **(dataset.measured or {})}
-    read = {k: v.detach().cpu().numpy() for k, v in recorded.items() if k not in skip}
-    edges = {k: band_edge(v) for k, v in read.items() if np.ptp(v) > 0}
-    return max(edges.values(), default=0.5), edges
+    targets = {equation.target for equation in spec.equations}
+    read = {k: v.detach().cpu().numpy() for k, v in dataset.signals.items() if k not in targets | set(spec.inputs)}
+    return record_band(read, ())
 
 
 @dataclass(frozen=True)
@@ -171,15 +178,15 @@ def _signals(measured: dict, every: int, band: float, data: DataConfig, spec: Mo
 def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset | None,
            estimator: DerivativeEstimator, half_width: float | None = None, samples: int = SAMPLES,
            band: tuple[float, dict] | None = None, refine: bool = False) -> Estimation:
-    """The band of the signals the regressors read in ``train`` (``band`` when given, as
-    :func:`regressor_band` gives it), the half-width (``half_width`` when given) and
+    """The band of ``train`` (``band`` as :func:`regressor_band` gives it, else that of its
+    measured states, :func:`record_band`), the half-width (``half_width`` when given) and
     decimation it implies, and both records' weak-form signals on the training device; with
     ``refine``, interpolated between samples where a half-width holds fewer than
     :data:`QUADRATURE` of them (:func:`refined`)."""
     measured = _measured(train)
     t = measured["t"]
     dt = float(t[1] - t[0])
-    band, edges = band or regressor_band(spec, train)  # cycles per sample
+    band, edges = band or record_band(measured, spec.inputs)  # cycles per sample
     rule = "given" if half_width else f"band edge {band / dt:.4g} cycles per time unit"
     half_width = half_width_for(band / dt, t, half_width)
     every = max(1, min(t.size // samples, int(1 / (SAMPLES_PER_PERIOD * band)), int(half_width / (QUADRATURE * dt))))

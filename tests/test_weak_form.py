@@ -7,11 +7,10 @@ import pytest
 import torch
 
 from msam_torch import adapt, weak
-from msam_torch.bandwidth import band_edge
 from msam_torch.config import load_config
 from msam_torch.data import Dataset
 from msam_torch.derivatives import SavitzkyGolay
-from msam_torch.estimation import choose, refined, regressor_band
+from msam_torch.estimation import choose, record_band, refined, regressor_band
 from msam_torch.spec import ModelSpec
 from msam_torch.systems import System, measure, multisine
 from msam_torch.weak import HALF_AMPLITUDE, SHORTEST, resolves
@@ -35,7 +34,7 @@ def test_the_regressors_band_reaches_a_velocitys_reversals():
     dataset = Dataset({"t": t, "q": q, "q_dot": q_dot, "q_ddot": torch.zeros_like(t), "tau": tau}, {},
                       {"q": q, "tau": tau})
     spec = ModelSpec.from_config(load_config({"model": MODEL}).model)
-    position = band_edge(q.numpy())
+    position, _ = record_band({"t": t.numpy(), "q": q.numpy(), "tau": tau.numpy()}, spec.inputs)
     band, edges = regressor_band(spec, dataset)
     assert set(edges) == {"q", "q_dot"}  # neither the input nor the target
     assert band == edges["q_dot"] and band > 5 * position
