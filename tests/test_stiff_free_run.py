@@ -58,7 +58,7 @@ def test_the_fastest_decaying_mode_of_a_linear_model_is_its_largest_stable_eigen
 
 
 def test_the_exact_model_of_a_stiff_motor_simulates_within_its_stability_interval():
-    """The band (2 Hz) asks for a 20 ms step, at which rk4 diverges on the 600 per second pole
+    """The band and the 5 s record ask for a 10 ms step, at which rk4 diverges on the 600 per second pole
     (every free run diverged, and the exact model read "inconclusive"): the step now starts at
     most at 0.9 x 2.785 / 600 / 2 = 2.1 ms (the check's run at twice it is stable too), and the
     exact model reads "no significant gap"."""
