@@ -165,9 +165,8 @@ def _pinned_rivals(spec: ModelSpec, extended: Equation, equation: Equation, hypo
 
 
 def _form(hypotheses: list[Hypothesis], c: int) -> set[int]:
-    """The hypotheses of ``c``'s form (kind, component, function): its starts."""
-    key = lambda h: (h.kind, h.component, h.function)
-    return {k for k, h in enumerate(hypotheses) if key(h) == key(hypotheses[c])}
+    """The hypotheses of ``c``'s form (:attr:`~.hypotheses.Hypothesis.form`): its starts."""
+    return {k for k, h in enumerate(hypotheses) if h.form == hypotheses[c].form}
 
 
 def _components(equation: Equation, hypotheses: list[Hypothesis], rmse: torch.Tensor) -> list[dict]:

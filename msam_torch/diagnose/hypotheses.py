@@ -57,6 +57,12 @@ class Hypothesis:
     start: float = 0.0
     references: tuple[str, ...] = ()  # an exchange's references (signals its component exchanges with)
 
+    @property
+    def form(self) -> tuple:
+        """(kind, component, function): the starts of one form are the same hypothesis fitted from
+        different exponents."""
+        return self.kind, self.component, self.function
+
     def label(self, equation: Equation) -> str:
         if self.kind == "retuned":
             return "starting model, theta re-fitted"

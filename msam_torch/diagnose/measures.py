@@ -36,10 +36,10 @@ def closure(start: torch.Tensor, retuned: torch.Tensor, adapted: torch.Tensor) -
     start is far off, the effect's part of the starting error is small whatever it does)."""
     nan = lambda v: torch.where(torch.isfinite(v) & (v > 0), v, torch.full_like(v, torch.nan))
     scale, base = nan(start), nan(retuned)
+    on_retuned = (base - torch.where(torch.isfinite(adapted), adapted, base)) / base  # a diverged effect closes nothing
     clean = lambda v: torch.where(torch.isfinite(v), v, scale)  # a diverged model closes nothing
     retuned, adapted = clean(retuned), clean(adapted)
-    return {"retuning": (scale - retuned) / scale, "effect": (retuned - adapted) / scale,
-            "effect_on_retuned": (base - torch.where(torch.isfinite(adapted), adapted, base)) / base}
+    return {"retuning": (scale - retuned) / scale, "effect": (retuned - adapted) / scale, "effect_on_retuned": on_retuned}
 
 
 def interval(samples: torch.Tensor, level: float = 0.9) -> list[float]:

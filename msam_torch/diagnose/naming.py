@@ -151,7 +151,7 @@ def repeated(hypotheses: list[Hypothesis], named: Naming, rmse: torch.Tensor) ->
     forms: dict[tuple, list[int]] = {}
     for c, h in enumerate(hypotheses):
         if h.kind not in EXPONENTLESS and bool(named.admissible[c]) and bool(torch.isfinite(rmse[c])):
-            forms.setdefault((h.kind, h.component, h.function), []).append(c)
+            forms.setdefault(h.form, []).append(c)
     for starts in forms.values():
         best = min(starts, key=lambda c: float(rmse[c]))
         centre, half = named.details[best]["total_exponent"], named.details[best]["half_width"]
@@ -176,9 +176,9 @@ def pinned(spec: ModelSpec, equation: Equation, hypotheses: list[Hypothesis]) ->
     single-valued catalogue entry its quantities admit, other than the component's own law."""
     roles, entries, seen, out = catalogue.Roles.of_equation(spec, equation), catalogue.entries(spec), set(), []
     for c, h in enumerate(hypotheses):
-        if h.kind in EXPONENTLESS or (h.kind, h.component, h.function) in seen:
+        if h.kind in EXPONENTLESS or h.form in seen:
             continue
-        seen.add((h.kind, h.component, h.function))
+        seen.add(h.form)
         reading = catalogue.read(roles, equation, h.component, h.function)
         out += [Pinned(c, float(e.exponent) - reading.power, e) for e in catalogue.admitted(entries, reading)
                 if not isinstance(e.exponent, tuple) and float(e.exponent) != reading.power]
