@@ -84,8 +84,8 @@ class EquationData:
         component by its RMS; ``'functions'`` divides the adjustment functions only (components and
         theta stay in the data's units)."""
         values = {k: v if v.dim() == 2 else v.unsqueeze(0) for k, v in signals.items()}
-        y = values[equation.target]
-        shape = y.shape
+        shape = torch.broadcast_shapes(*(v.shape for v in values.values()))
+        y = values[equation.target].expand(shape)
 
         def evaluate(expression):
             value = expression(values)

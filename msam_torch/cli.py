@@ -195,6 +195,16 @@ def _diagnose(args) -> int:
     return 0
 
 
+def _solver(text: str) -> str:
+    """An argparse type: a torchdiffeq method name, else a one-line usage error naming the option."""
+    from .diagnose.compare import check_solver
+    try:
+        check_solver(text)
+    except MSAMError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("solver: ")) from None
+    return text
+
+
 def _positive(kind, zero: bool = False):
     """An argparse type: a finite positive ``kind`` (int or float; with ``zero``, 0 too), else a
     one-line usage error."""
@@ -217,7 +227,8 @@ DIAGNOSE_OPTIONS = (  # (flag, DiagnoseOptions field, argparse keywords); defaul
                                     "units (default: chosen from the band of the measured states)"}),
     ("--bootstrap", "bootstrap", {"type": _positive(int, zero=True), "help": "bootstrap trials (0: none; default 16)"}),
     ("--seed", "seed", {"type": int, "help": "seed of the bootstrap trials (default 0)"}),
-    ("--solver", "solver", {"help": "torchdiffeq method of the free runs: rk4, midpoint, euler (fixed step) or "
+    ("--solver", "solver", {"type": _solver,
+                            "help": "torchdiffeq method of the free runs: rk4, midpoint, euler (fixed step) or "
                             "dopri5, bosh3, ... (adaptive); default rk4"}),
     ("--solver-step", "solver_step", {"type": _positive(float), "help": "fixed-step solvers: step in time units "
                                       "(default: 1/25 of the band's period, halved until runs at two steps agree)"}),
@@ -351,9 +362,10 @@ def _dispatch(args) -> int:
 
 
 def _located(exc: MSAMError, config: str | None) -> MSAMError:
-    """A config error found past validation (an expression, a target, a term) with the config file
-    it is in, where the message does not name one."""
-    if config is None or not isinstance(exc, ConfigError) or "(in " in str(exc) or not exc.key.startswith("model."):
+    """A config error found past validation (an expression, a target, a term, a data setting the
+    record needs) with the config file it is in, where the message does not name one."""
+    if config is None or not isinstance(exc, ConfigError) or "(in " in str(exc) \
+            or "(command-line override " in str(exc) or not exc.key.startswith(("model.", "data.")):
         return exc
     located = ConfigError("", f"{exc} (in {config})")
     located.key = exc.key

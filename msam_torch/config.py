@@ -307,10 +307,11 @@ def read_yaml(path: Union[str, Path], what: str = "config") -> dict:
     return raw
 
 
-def validate(schema: type[BaseModel], raw: dict, origin: str):
+def validate(schema: type[BaseModel], raw: dict, origin: str, overrides: tuple[str, ...] = ()):
     """``schema.model_validate(raw)``; the first problem raises :class:`ConfigError` with its key path
     (a value's own check, such as finiteness, is preferred to the type mismatches of a union's
-    other branches, whose names are left out of the path)."""
+    other branches, whose names are left out of the path) and where it was given: the
+    command-line override that set it (or a section above it), else ``origin``."""
     try:
         return schema.model_validate(raw)
     except pydantic.ValidationError as exc:
@@ -318,8 +319,11 @@ def validate(schema: type[BaseModel], raw: dict, origin: str):
         error = next((e for e in errors if e["type"] == "value_error"), errors[0])
         loc = [p for p in error["loc"] if not (isinstance(p, str) and _BRANCH.match(p))]
         key = ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in loc).replace(".[", "[")
+        dotted = lambda k: _INDEX.sub(r".\1", k)
+        given = [o for o in overrides if (dotted(key) + ".").startswith(dotted(o.partition("=")[0]) + ".")]
+        where = f"command-line override {given[-1]!r}" if given else f"in {origin}"
         raise ConfigError(key, f"{error['msg'].removeprefix('Value error, ')}{misspelt(error, errors, schema)} "
-                               f"(in {origin})") from None
+                               f"({where})") from None
 
 
 def load_config(source: Union[str, Path, dict], overrides: list[str] = ()) -> Config:
@@ -328,7 +332,7 @@ def load_config(source: Union[str, Path, dict], overrides: list[str] = ()) -> Co
         raw, origin = source, "config"
     else:
         raw, origin = read_yaml(source), str(source)
-    return validate(Config, _apply_overrides(raw, overrides), origin)
+    return validate(Config, _apply_overrides(raw, overrides), origin, tuple(overrides))
 
 
 def _yaml_place(exc: yaml.YAMLError) -> str:

@@ -80,6 +80,16 @@ class Estimation:
         windows = [d.get("window") or 0 for d in derivatives.values()] if isinstance(derivatives, dict) else []
         return max(windows, default=0) * self.refinement
 
+    def noise(self, levels: Mapping[str, float], trials: int, generator: torch.Generator) -> dict[str, torch.Tensor]:
+        """``trials`` draws (T, N) of white measurement noise of each signal's ``levels`` (standard
+        deviation per recorded sample) as the training signals carry it: about ``1 / decimation``
+        of its power kept by the anti-alias filter, interpolated between the samples as they are."""
+        t = self.train["t"]
+        n = (t.shape[-1] - 1) // self.refinement + 1
+        draws = lambda level: torch.randn(trials, n, generator=generator, dtype=t.dtype) * level / self.decimation**0.5
+        return {name: refined(draws(level).to(t.device), self.refinement, not _held(self.info))
+                for name, level in levels.items()}
+
 
 def _measured(dataset: Dataset) -> dict[str, np.ndarray]:
     given = {"t": dataset.t, **(dataset.measured or dataset.signals)}

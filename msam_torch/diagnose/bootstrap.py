@@ -1,8 +1,12 @@
 """Bootstrap trials of the hypothesis fit: moving time blocks of the weak-form rows and noise on
 their targets, all trials fitted as one batch on the leading axis, warm-started at the original
-fit (the best effect hypotheses and the re-fitted start only)."""
+fit (the best effect hypotheses and the re-fitted start only). Beside them, copies of the
+whole record with measurement noise added again to every measured state the rows read: noise in a
+regressor moves a non-linear law's exponent (errors in variables), and about as far again when
+the noise power is doubled: a shift no spread of the trials shows (:func:`.naming.half_width`)."""
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -22,6 +26,7 @@ class Bootstrap:
     data: EquationData
     fitted: Fitted
     rmse: torch.Tensor
+    noisier: Fitted  # (copies, C): the fits to the record with its measured states' noise doubled
 
 
 def block_weights(fit_rows: torch.Tensor, trials: int, blocks: int, generator: torch.Generator) -> torch.Tensor:
@@ -35,14 +40,15 @@ def block_weights(fit_rows: torch.Tensor, trials: int, blocks: int, generator: t
 
 
 def bootstrap(weak: WeakForm, choices: torch.Tensor, q: int, original: Fitted, rmse: torch.Tensor, noise: float,
-              order: int, options: DiagnoseOptions, step_options: StepOptions,
+              order: int, again: Callable[[int], dict], options: DiagnoseOptions, step_options: StepOptions,
               generator: torch.Generator) -> Bootstrap | None:
     """``options.bootstrap`` trials (None for none) of the hypotheses' ``choices`` (``q`` adjustable
-    components, :func:`~.hypotheses.fit`): row weights from :func:`block_weights`, target
-    noise of the measured signal's level ``noise`` integrated against the order-``order`` test
-    function; the re-fitted start and the ``options.bootstrap_hypotheses`` best valid effect
-    hypotheses (by held-out ``rmse``, (C,)) whose exponents are sane (the ones that can be named)
-    re-fitted with ``options.bootstrap_steps`` steps."""
+    components, :func:`~.hypotheses.fit`): row weights from :func:`block_weights`, target noise of
+    the measured signal's level ``noise`` integrated against the order-``order`` test function;
+    and half as many copies of every row with ``again(copies)`` (signal -> (copies, N)) added to
+    the measured states. Each re-fits the re-fitted start and the ``options.bootstrap_hypotheses``
+    best valid effect hypotheses (by held-out ``rmse``, (C,)) whose exponents are sane (the ones that
+    can be named), ``options.bootstrap_steps`` steps from the original fit."""
     if options.bootstrap <= 0:
         return None
     t = weak.signals["t"]
@@ -56,7 +62,11 @@ def bootstrap(weak: WeakForm, choices: torch.Tensor, q: int, original: Fitted, r
     part = fit(data, choices[keep], original.gamma[:, keep], step_options, options.bootstrap_steps, q)
     boot_rmse = torch.full((options.bootstrap, choices.shape[0]), torch.inf, dtype=t.dtype, device=t.device)
     boot_rmse[:, keep] = heldout_rmse(heldout_errors(weak.val_data, weak.val_rows, choices[keep], part), part)
-    return Bootstrap(data, _scatter(part, keep, choices.shape[0]), boot_rmse)
+    every_row = weak.fit_rows.to(t.dtype).unsqueeze(0)
+    copies = weak.weighted(every_row, noise=again(max(2, options.bootstrap // 2)))
+    noisier = fit(copies, choices[keep], original.gamma[:, keep], step_options, options.bootstrap_steps, q)
+    c = choices.shape[0]
+    return Bootstrap(data, _scatter(part, keep, c), boot_rmse, _scatter(noisier, keep, c))
 
 
 def _scatter(part: Fitted, keep: torch.Tensor, c: int) -> Fitted:

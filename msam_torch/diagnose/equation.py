@@ -62,13 +62,15 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     errors = heldout_errors(weak.val_data, weak.val_rows, choices, original)  # (1, C, M')
     rmse, errors = heldout_rmse(errors, original)[0], errors[0]  # (C,), (C, M')
 
-    # bootstrap trials: time blocks and measurement noise
+    # bootstrap trials: time blocks and measurement noise; copies with the measured states' noise doubled
     source, order = target_source(extended, weak.signals)
     # white noise keeps about 1 / decimation of its power through the anti-alias filter; interpolated
     # between samples it is integrated as on the samples (a test function's norm there is sqrt(k) larger)
-    noise = float(train.info.get("noise_level", {}).get(source, 0.0) or 0.0) \
-        * (estimation.refinement / estimation.decimation)**0.5
-    boot = bootstrap(weak, choices, q, original, rmse, noise, order, options, step_options, generator)
+    levels = {k: float(v) for k, v in train.info.get("noise_level", {}).items() if v and k in weak.signals}
+    noise = levels.get(source, 0.0) * (estimation.refinement / estimation.decimation)**0.5
+    states = {k: v for k, v in levels.items() if k not in spec.inputs}
+    again = lambda copies: estimation.noise(states, copies, generator)
+    boot = bootstrap(weak, choices, q, original, rmse, noise, order, again, options, step_options, generator)
 
     # catalogue names within each hypothesis's bootstrap interval of its total exponent
     named = name_hypotheses(spec, equation, hypotheses, original, boot, nominal)

@@ -4,11 +4,13 @@
 Each effect hypothesis's *total exponent* on its signal (``gamma`` plus the power of the signal in
 its component: ``c v|v|^-0.3`` is 0.7 on ``v``) gets an interval from the bootstrap trials
 (:mod:`.bootstrap`): the original fit +- two robust standard deviations (1.4826 median absolute
-deviations, so that a trial falling into another optimum does not widen it) of the trials' exponents
-(a trial that never left its warm start at the original fit has none of its own), and never narrower
-than the catalogue's resolution +-0.2 (the trials see noise and time blocks, not the bias of the
-weak-form estimate or of a smoothed law). An entry names it only when that interval holds the
-catalogue's exponent and no other entry's (:func:`.catalogue.match`); nothing is moved into an
+deviations, so that a trial falling into another optimum does not widen it) of the trials' exponents,
+or of the exponents of copies of the record with its measured states' noise doubled where those
+spread wider (a trial or copy that never left its warm start at the original fit has none of its
+own), never narrower than the catalogue's resolution +-0.2 (neither sees the bias of the weak-form
+estimate or of a smoothed law), plus how far the copies' median moved from the fit
+(:func:`noise_shift`: noise in a regressor biases an exponent). An entry names it only when that
+interval holds the catalogue's exponent and no other entry's (:func:`.catalogue.match`); nothing is moved into an
 interval. A hypothesis whose exponent leaves the sane range (:data:`.hypotheses.SANE_EXPONENT`) or
 never left its start (no step was accepted: the exponent is not estimated), or whose interval is
 wider than :data:`STABLE_HALF_WIDTH` or rests on fewer than half the trials, is not an effect; nor
@@ -51,22 +53,36 @@ class Naming:
 
 
 def half_width(boot: Bootstrap | None, c: int, s: int, fitted: float) -> float:
-    """Two robust standard deviations of hypothesis ``c``'s exponent in slot ``s`` over the trials that
-    re-fitted it, at least the catalogue's tolerance (inf when fewer than half did). A trial is
-    warm-started at the original fit ``fitted``: one whose exponent never left it accepted no step
-    and has no estimate of its own, and is left out of the spread, which it would shrink (when
-    fewer than two moved, no step near the fit improved it: the tolerance)."""
+    """Hypothesis ``c``'s exponent interval in slot ``s``, as a half-width about the original fit
+    ``fitted``: two robust standard deviations of the exponents of the trials that re-fitted it, or
+    of the copies with doubled noise (:mod:`.bootstrap`) where they spread wider, at least the
+    catalogue's tolerance, plus how far the copies' median moved from the fit (:func:`noise_shift`);
+    inf when fewer than half of the trials re-fitted it. Trials and copies are warm-started at the
+    fit: one whose exponent never left it accepted no step and has no estimate of its own, and is
+    left out, since it would shrink the spread (when fewer than two moved, no step near the fit
+    improved it: the tolerance)."""
     if boot is None:
         return catalogue.TOLERANCE
-    g = boot.fitted.gamma[:, c, s]
     valid = ~boot.fitted.invalid[:, c] & torch.isfinite(boot.rmse[:, c])
     if 2 * int(valid.sum()) < valid.numel() or int(valid.sum()) < 2:
         return float("inf")
-    moved = g[valid & (g != fitted)]
-    if moved.numel() < 2:
-        return catalogue.TOLERANCE
-    robust_std = MAD_TO_STD * float((moved - moved.median()).abs().median())
-    return max(SPREAD * robust_std, catalogue.TOLERANCE)
+    trials = _moved(boot.fitted.gamma[:, c, s], valid, fitted)
+    copies = _moved(boot.noisier.gamma[:, c, s], ~boot.noisier.invalid[:, c], fitted)
+    spread = max((SPREAD * MAD_TO_STD * float((g - g.median()).abs().median()) for g in (trials, copies)
+                  if g.numel() >= 2), default=0.0)
+    return max(spread, catalogue.TOLERANCE) + noise_shift(copies, fitted)
+
+
+def _moved(gamma: torch.Tensor, valid: torch.Tensor, fitted: float) -> torch.Tensor:
+    return gamma[valid & (gamma != fitted)]
+
+
+def noise_shift(copies: torch.Tensor, fitted: float) -> float:
+    """How far doubling the measured states' noise moved an exponent from the original fit
+    ``fitted``: the median of the ``copies`` that moved (:mod:`.bootstrap`). Noise in a regressor
+    moves a non-linear law's exponent (errors in variables), and about as far again when its power
+    is doubled, in a direction the interval must reach (0 with fewer than two copies)."""
+    return abs(float(copies.median()) - fitted) if copies.numel() >= 2 else 0.0
 
 
 def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypothesis], original: Fitted,

@@ -102,6 +102,9 @@ class WeakForm:
     def target_rms(self) -> float:
         return float(torch.sqrt((self.y_val**2).mean()))
 
-    def weighted(self, weights: torch.Tensor, jitter: torch.Tensor) -> EquationData:
-        """The training rows weighted by ``weights`` (T, M), targets moved by ``jitter`` (T, M)."""
-        return weak_data(self.extended, self.signals, self.tests, weights=weights, jitter=jitter)
+    def weighted(self, weights: torch.Tensor, jitter: torch.Tensor | None = None,
+                 noise: dict | None = None) -> EquationData:
+        """The training rows weighted by ``weights`` (T, M), targets moved by ``jitter`` (T, M), of
+        the signals with ``noise`` (signal -> (T, N)) added."""
+        signals = {**self.signals, **{k: self.signals[k] + v for k, v in (noise or {}).items()}}
+        return weak_data(self.extended, signals, self.tests, weights=weights, jitter=jitter)
