@@ -294,3 +294,16 @@ def test_two_effect_zoo_cases_withhold_two_separable_effects_and_are_scored_in_a
     wrong = [{**steps[0], "exponent": steps[0]["exponent"] + 0.5}]
     scored = score.score({**report, "in_turn": {"effects": wrong}}, case.truth)
     assert scored["found"] == 0 and scored["spurious"] == 1
+
+
+def test_an_explained_gap_without_catalogue_details_prints():
+    """A diagnosis by simulation names its effect without the catalogue's details (``naming`` None,
+    as for the cascaded tanks' hand-made config): the summary prints the verdict and the models
+    (the line giving the model at the catalogue exponent raised AttributeError)."""
+    gap = replace(_gap("h2_dot", Verdict.EXPLAINED, "Torricelli outflow"), where={"flagged_fraction": 0.0},
+                  confidence={"win_frequency": 1.0, "bootstrap_trials": 0})
+    assert gap.naming is None
+    report = GapReport(Verdict.EXPLAINED, Verdict.EXPLAINED.text("Torricelli outflow"), (gap,), {}, {}, {}, {}, 0.0)
+    printed = str(report)
+    assert printed.startswith("verdict: gap explained by Torricelli outflow") and "  adapted:  adapted" in printed
+    assert "at the catalogue exponent" not in printed

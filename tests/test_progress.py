@@ -27,7 +27,9 @@ def test_diagnose_writes_progress_to_a_log_before_it_finishes(tmp_path):
     assert process.wait() == 0
     assert running and first.startswith("diagnose: 0/3 reading the data")
     lines = [first.strip()] + rest.splitlines()
-    assert [line.split(" (")[0] for line in lines[:3]] == [
+    stages = [line.split(" (")[0] for line in lines]
+    stages = [s for k, s in enumerate(stages) if k == 0 or s != stages[k - 1]]  # a stage's heartbeats once
+    assert stages[:3] == [
         "diagnose: 0/3 reading the data", "diagnose: 1/3 equation q_ddot", "diagnose: 2/3 comparing the models"]
     assert "about" in lines[1] and lines[-1].startswith("info: writing the report to ")
 

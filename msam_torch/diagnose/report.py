@@ -123,7 +123,7 @@ class GapReport:
             lines.append(f"  starting: {g.start_equation}")
             lines.append(f"  theta re-fitted: {g.retuned_equation}")
             lines.append(f"  adapted:  {g.adapted_equation}")
-            if g.verdict_kind == Verdict.EXPLAINED and g.naming.get("at_catalogue_exponent"):
+            if g.verdict_kind == Verdict.EXPLAINED and (g.naming or {}).get("at_catalogue_exponent"):
                 lines.append(f"  at the catalogue exponent: {g.naming['at_catalogue_exponent']}")
             if g.significant and g.verdict_kind == Verdict.INCONCLUSIVE and c.get("rival_equation"):
                 lines.append(f"  as good, {c['rival']}: {c['rival_equation']}")
