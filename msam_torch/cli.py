@@ -20,6 +20,7 @@ from pathlib import Path
 
 from . import __version__
 from .allocator import keep_freed_memory
+from .argtypes import positive, solver
 from .errors import ConfigError, Interrupted, MSAMError, NoInformation
 from .progress import LOGGER, logging_to, step
 
@@ -195,49 +196,22 @@ def _diagnose(args) -> int:
     return 0
 
 
-def _solver(text: str) -> str:
-    """An argparse type: a torchdiffeq method name, else a one-line usage error naming the option."""
-    from .diagnose.compare import check_solver
-    try:
-        check_solver(text)
-    except MSAMError as exc:
-        raise argparse.ArgumentTypeError(str(exc).removeprefix("solver: ")) from None
-    return text
-
-
-def _positive(kind, zero: bool = False):
-    """An argparse type: a finite positive ``kind`` (int or float; with ``zero``, 0 too), else a
-    one-line usage error."""
-    number = ("whole " if kind is int else "") + "number"
-    wanted = f"a {number} of at least 0" if zero else f"a positive {number}"
-
-    def parse(text: str):
-        try:
-            value = kind(text)
-        except ValueError:
-            value = -1
-        if not (0 <= value if zero else 0 < value) or not value < float("inf"):
-            raise argparse.ArgumentTypeError(f"{text!r} is not {wanted}")
-        return value
-    return parse
-
-
 DIAGNOSE_OPTIONS = (  # (flag, DiagnoseOptions field, argparse keywords); defaults are DiagnoseOptions'
-    ("--half-width", "half_width", {"type": _positive(float), "help": "test-function half-width in the data's time "
+    ("--half-width", "half_width", {"type": positive(float), "help": "test-function half-width in the data's time "
                                     "units (default: chosen from the band of the measured states)"}),
-    ("--bootstrap", "bootstrap", {"type": _positive(int, zero=True), "help": "bootstrap trials (0: none; default 16)"}),
+    ("--bootstrap", "bootstrap", {"type": positive(int, zero=True), "help": "bootstrap trials (0: none; default 16)"}),
     ("--seed", "seed", {"type": int, "help": "seed of the bootstrap trials (default 0)"}),
-    ("--solver", "solver", {"type": _solver,
+    ("--solver", "solver", {"type": solver,
                             "help": "torchdiffeq method of the free runs: rk4, midpoint, euler (fixed step) or "
                             "dopri5, bosh3, ... (adaptive); default rk4"}),
-    ("--solver-step", "solver_step", {"type": _positive(float), "help": "fixed-step solvers: step in time units "
+    ("--solver-step", "solver_step", {"type": positive(float), "help": "fixed-step solvers: step in time units "
                                       "(default: 1/25 of the band's period, halved until runs at two steps agree)"}),
-    ("--rtol", "rtol", {"type": _positive(float), "help": "adaptive solvers: relative tolerance (default 1e-6)"}),
-    ("--atol", "atol", {"type": _positive(float), "help": "adaptive solvers: absolute tolerance relative to each "
+    ("--rtol", "rtol", {"type": positive(float), "help": "adaptive solvers: relative tolerance (default 1e-6)"}),
+    ("--atol", "atol", {"type": positive(float), "help": "adaptive solvers: absolute tolerance relative to each "
                         "state's measured magnitude (default 1e-8)"}),
-    ("--max-effects", "max_effects", {"type": _positive(int), "help": "effects added in turn, at most: after an "
+    ("--max-effects", "max_effects", {"type": positive(int), "help": "effects added in turn, at most: after an "
                                       "accepted effect the rest of the gap is diagnosed again (default 1: no loop)"}),
-    ("--quadrature-samples", "quadrature_samples", {"type": _positive(int), "help": "records are low-pass filtered and "
+    ("--quadrature-samples", "quadrature_samples", {"type": positive(int), "help": "records are low-pass filtered and "
                                                     "decimated to about this many samples (default 1000)"}),
 )
 
@@ -312,7 +286,7 @@ def _parse(argv) -> argparse.Namespace:
     diag.add_argument("--data", help="measured CSV/Parquet file (default: the config's data)")
     diag.add_argument("--validate", help="held-out CSV/Parquet file, ideally from another excitation")
     diag.add_argument("--out", help="output folder (default: a new runs/<config name>_diagnosis/version_N)")
-    diag.add_argument("--threads", type=_positive(int), help="torch CPU threads (1 is fastest on a busy machine)")
+    diag.add_argument("--threads", type=positive(int), help="torch CPU threads (1 is fastest on a busy machine)")
     for flag, field, keywords in DIAGNOSE_OPTIONS:
         diag.add_argument(flag, dest=field, **keywords)
     diag.add_argument("--no-free-run", action="store_true", help="do not simulate the models (no free-run measures)")
