@@ -217,3 +217,23 @@ def test_a_diverged_run_is_told_from_a_diverged_run_of_the_model_the_verdict_res
     assert figures("no_gap", "no significant gap", {"start": 0.5, "retuned": None, "adapted": 0.3}) == (True, True)
     assert figures("no_gap", "no significant gap", {"start": None, "retuned": 0.3, "adapted": 0.3}) == (True, False)
     assert figures("inconclusive", "inconclusive", {"start": None, "retuned": None, "adapted": None}) == (False, False)
+
+
+def test_outcome_classes_read_the_verdict_where_no_equation_is_flagged():
+    """A null whose equations show no significant gap but whose verdict is inconclusive (a free-run
+    check failed) is 'inconclusive', not 'no gap'; with the verdict 'no significant gap' it is
+    'no gap'; a catalogued case likewise, and a flagged equation classes by its own verdict."""
+    from experiments.zoo import outcome
+
+    quiet = {"x_ddot": {"verdict": Verdict.NO_GAP.text()}}
+    truth = lambda kind: {"kind": kind, "targets": ["x_ddot"], "name": "Coulomb friction"}
+    row = lambda kind, verdict, equations=quiet: {"ours": {"verdict": verdict, "equations": equations, "top1": False},
+                                                  "truth": truth(kind)}
+    assert outcome(row("null", Verdict.NO_GAP.text())) == "no gap"
+    assert outcome(row("null", Verdict.INCONCLUSIVE.text())) == "inconclusive"
+    assert outcome(row("out_of_catalogue", Verdict.INCONCLUSIVE.text())) == "inconclusive"
+    assert outcome(row("catalogued", Verdict.NO_GAP.text())) == "no significant gap"
+    assert outcome(row("catalogued", Verdict.INCONCLUSIVE.text())) == "inconclusive"
+    flagged = {"x_ddot": {"verdict": Verdict.INCONCLUSIVE.text()}}
+    assert outcome(row("null", Verdict.INCONCLUSIVE.text(), flagged)) == "inconclusive"
+    assert outcome(row("catalogued", Verdict.INCONCLUSIVE.text(), flagged)) == "inconclusive"
