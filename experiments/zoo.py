@@ -197,16 +197,16 @@ def outcome(row: dict) -> str:
     flagged = [t for t, v in verdicts.items() if v != Verdict.NO_GAP.text()]
     named = [t for t, v in verdicts.items() if score.explained(v)]
     undecided = all(verdicts[t] == Verdict.INCONCLUSIVE.text() for t in flagged)
-    quiet = "no gap" if ours["verdict"] == Verdict.NO_GAP.text() else "inconclusive"  # no equation flagged
+    no_gap = ours["verdict"] == Verdict.NO_GAP.text()  # where no equation is flagged, the verdict tells
     if truth["kind"] != "catalogued":
-        return (quiet if not flagged else "named an effect" if named else "inconclusive" if undecided
-                else "gap, not explained")
+        return (("no gap" if no_gap else "inconclusive") if not flagged else "named an effect" if named
+                else "inconclusive" if undecided else "gap, not explained")
     if ours["top1"]:
         return "top-1"
     targets = truth["targets"]
     if not any(t in flagged for t in targets):
-        return "another equation flagged, not the truth's" if flagged else \
-            "no significant gap" if quiet == "no gap" else "inconclusive"
+        return ("another equation flagged, not the truth's" if flagged else "no significant gap" if no_gap
+                else "inconclusive")
     target = targets[0]
     if target not in named:
         return ("inconclusive" if verdicts[target] == Verdict.INCONCLUSIVE.text()

@@ -320,17 +320,20 @@ def test_a_name_needs_the_only_entry_the_interval_holds(total, named):
     assert len(found) == (1 if named else 2), found
 
 
+def _fits(gammas: torch.Tensor) -> Fitted:
+    """Fits of one hypothesis with one exponent slot, one per value of ``gammas`` (T,)."""
+    t = gammas.shape[0]
+    return Fitted(gammas.view(t, 1, 1), torch.zeros(t, 1, 1), torch.zeros(t, 1, 0), torch.zeros(t, 1),
+                  torch.zeros(t, 1, dtype=torch.bool))
+
+
 def test_a_trial_that_never_left_its_warm_start_has_no_exponent_of_its_own():
     """The interval's half-width spreads over the trials that moved: five trials stuck at the
     original fit (1.0) would shrink the median absolute deviation of the eleven that moved; with
     fewer than two moving, no step near the fit improved it, and the tolerance (0.2) is left."""
     moved = torch.tensor([0.7, 0.8, 0.85, 0.9, 0.95, 1.05, 1.1, 1.15, 1.2, 1.3, 1.5], dtype=torch.float64)
-    def fits(gammas):
-        t = gammas.shape[0]
-        return Fitted(gammas.view(t, 1, 1), torch.zeros(t, 1, 1), torch.zeros(t, 1, 0), torch.zeros(t, 1),
-                      torch.zeros(t, 1, dtype=torch.bool))
     def boot(gammas):  # the copies with doubled noise never left the fit either
-        return Bootstrap(None, fits(gammas), torch.ones(gammas.shape[0], 1), fits(torch.ones(8, dtype=torch.float64)))
+        return Bootstrap(None, _fits(gammas), torch.ones(gammas.shape[0], 1), _fits(torch.ones(8, dtype=torch.float64)))
     spread = float(1.4826 * 2 * (moved - moved.median()).abs().median())
     stuck = torch.ones(5, dtype=torch.float64)
     counted = torch.cat([moved, stuck])
@@ -345,18 +348,14 @@ def test_doubled_noise_that_moves_the_exponent_widens_its_interval_by_the_shift(
     estimate, and about as far again from the noise-free value, in a direction no spread shows. The
     interval is the fit +- (0.2 + 0.3) and holds quadratic drag (2.0) beside power-law damping,
     where the fit, 1.78, alone would name the latter."""
-    def fits(gammas):
-        t = gammas.shape[0]
-        return Fitted(gammas.view(t, 1, 1), torch.zeros(t, 1, 1), torch.zeros(t, 1, 0), torch.zeros(t, 1),
-                      torch.zeros(t, 1, dtype=torch.bool))
     spread = 1.78 + torch.linspace(-0.05, 0.05, 16, dtype=torch.float64)
     noisier = 1.78 - 0.3 + torch.linspace(-0.01, 0.01, 8, dtype=torch.float64)
-    half = half_width(Bootstrap(None, fits(spread), torch.ones(16, 1), fits(noisier)), 0, 0, 1.78)
+    half = half_width(Bootstrap(None, _fits(spread), torch.ones(16, 1), _fits(noisier)), 0, 0, 1.78)
     assert half == pytest.approx(0.5, abs=0.003)  # torch.median: the lower of the middle two
-    assert half_width(Bootstrap(None, fits(spread), torch.ones(16, 1), fits(spread[4:12])), 0, 0, 1.78) < 0.21
+    assert half_width(Bootstrap(None, _fits(spread), torch.ones(16, 1), _fits(spread[4:12])), 0, 0, 1.78) < 0.21
     # copies that spread wider than the trials (noise in a regressor) widen it by their spread
     wide = 1.78 + torch.tensor([-0.4, -0.2, -0.1, 0.0001, 0.1, 0.2, 0.4, 0.3], dtype=torch.float64)
-    half = half_width(Bootstrap(None, fits(spread), torch.ones(16, 1), fits(wide)), 0, 0, 1.78)
+    half = half_width(Bootstrap(None, _fits(spread), torch.ones(16, 1), _fits(wide)), 0, 0, 1.78)
     assert half == pytest.approx(2 * 1.4826 * 0.1999 + 0.0001, abs=1e-6)  # MAD 0.1999, shift 0.0001
     speed = catalogue.Reading("velocity", "velocity", "velocity", "v", 1.0)
     found = lambda h: sorted(e.name for e in catalogue.consistent(catalogue.entries(), speed, 1.78, h, same_sign=True))
