@@ -1,14 +1,16 @@
 """Algebraic vs simulation-based evaluation on the controlled cases of Table 1.
 
     PYTHONPATH=. python experiments/algebraic_vs_simulation.py [--cases harmonic vanderpol sode3]
-        [--levels 0 0.25] [--trials 2] [--refinement 5] [--rules paper robust] [--out DIR] [--jobs 2]
+        [--levels 0 0.25] [--trials 2] [--refinement 5] [--rules paper robust damped] [--out DIR] [--jobs 2]
 
 Every case runs Algorithm 1 in both evaluation modes on the same exact simulated record, with
 theta held at its nominal values, the config's round-robin steps (sode3: 15, the paper's count for
-its first two equations) and ``--refinement`` refinement steps, under two step rules:
+its first two equations) and ``--refinement`` refinement steps, under three step rules:
 
 - ``paper``: the config's rule (dM-scaled step, Eq. 16-18, with mu by Eq. 20);
 - ``robust``: a Gauss-Newton step in exponent units with a backtracking line search on the fitness.
+- ``damped``: ``robust`` with Levenberg-Marquardt damping 0.1 (the measured preset's step for candidates
+  judged by simulation, :data:`msam_torch.plan.SIMULATED`).
 
 Simulation mode simulates the measured states (harmonic, van der Pol: x; third-order model: each
 state with the other two read from the data, ``coupling: separate``) with the midpoint rule (fixed
@@ -59,7 +61,8 @@ SIMULATION = {
     "sode3": ["adaptation.simulation.output=[x1, x2, x3]", "adaptation.simulation.coupling=separate"],
 }
 CASE_OVERRIDES = {"sode3": ["adaptation.round_robin_steps=15"]}
-RULES = {"paper": [], "robust": ["adaptation.scaling=gauss_newton", "adaptation.step_size=line_search"]}
+RULES = {"paper": [], "robust": ["adaptation.scaling=gauss_newton", "adaptation.step_size=line_search"],
+         "damped": ["adaptation.scaling=gauss_newton", "adaptation.step_size=line_search", "adaptation.damping=0.1"]}
 
 
 def parameter_sets(config, spec, trials: int) -> list[dict]:
@@ -188,7 +191,8 @@ def main() -> int:
     write_csv(out, "trials.csv", pd.DataFrame(rows))
     notes = (f"Trials per non-zero error level: {args.trials} (level 0: 1); refinement steps: {args.refinement}; "
              f"{args.jobs} rows in parallel, one torch thread each. Step rules: paper = dM-scaled step with mu by Eq. 20; robust = "
-             "Gauss-Newton step with a backtracking line search. Time: all trials of the row, wall clock.")
+             "Gauss-Newton step with a backtracking line search; damped = robust with damping 0.1. Time: all trials of the "
+             "row, wall clock.")
     write_text(out, "summary.md", "# Algebraic vs simulation-based evaluation (Table 1 cases)\n\n"
                + markdown_table(HEADER, table) + "\n\n" + "\n".join(f"- {line}" for line in lines) + "\n\n" + notes + "\n")
     print(f"wrote {out / 'trials.csv'} and {out / 'summary.md'}")

@@ -20,7 +20,11 @@ the same kernel, so a non-linearity's harmonics are filtered from both sides ali
 the regressors need through a zero-phase Butterworth filter above that band,
 :mod:`msam_torch.estimation`), else on Butterworth derivatives at the noise floor; every
 adjustment function normalised by its RMS (units, design.md 2.7); and theta re-solved at every step (variable projection, Eq. 17-18), so the
-result does not hinge on the nominal theta. ``preset: paper`` keeps the literal step. The
+result does not hinge on the nominal theta. Where candidates are judged by simulation
+(:data:`SIMULATED`), the step is a damped Gauss-Newton step in exponent units with a backtracking
+line search: the simulated sensitivities of exponents on correlated states are nearly collinear,
+and the undamped dM-scaled step with Eq. 20's mu leaves the exponents' range (docs/performance.md,
+"Algebraic vs simulation-based evaluation"). ``preset: paper`` keeps the literal step. The
 diagnosis always uses the weak form and its band-limited estimation; it is prepared without a
 preset.
 """
@@ -39,13 +43,18 @@ from .evaluators import EVALUATORS, Evaluator
 from .progress import LOGGER
 from .spec import ModelSpec
 from .step import StepOptions
-from .trainer import Trainer
+from .trainer import Algebraic, Trainer
 
 SECTIONS = {"derivatives": "data", "evaluation": "adaptation", "step_size": "adaptation", "theta": "adaptation"}
 PRESETS = {  # preset -> {(section, key): value} for the keys a config does not give
     "paper": {},
     "measured": {("data", "derivatives"): "butterworth", ("adaptation", "normalize"): "rms",
                  ("adaptation", "theta"): "varpro", ("adaptation", "form"): "auto"},
+}
+SIMULATED = {  # preset -> its further keys for models judged by simulation (adaptation.evaluation)
+    "paper": {},
+    "measured": {("adaptation", "scaling"): "gauss_newton", ("adaptation", "step_size"): "line_search",
+                 ("adaptation", "damping"): 0.1},
 }
 
 
@@ -115,12 +124,19 @@ def with_preset(config: Config, measured: bool) -> Config:
     if name not in PRESETS:
         raise ConfigError("adaptation.preset", f"unknown preset {name!r} (choose from auto, {', '.join(PRESETS)})")
     given = {"data": config.data.model_fields_set, "adaptation": config.adaptation.model_fields_set}
-    settings = {(section, key): value for (section, key), value in PRESETS[name].items() if key not in given[section]}
+    preset = {**PRESETS[name], **(SIMULATED[name] if by_simulation(config) else {})}
+    settings = {(section, key): value for (section, key), value in preset.items() if key not in given[section]}
     if not settings:
         return config
     LOGGER.debug("preset %r: %s (adaptation.preset=paper keeps the paper's step)", name,
                 ", ".join(f"{section}.{key}={value}" for (section, key), value in settings.items()))
     return updated(config, {**settings, ("adaptation", "preset"): name}, f"preset {name!r}")
+
+
+def by_simulation(config: Config) -> bool:
+    """Whether ``config`` judges candidates by simulation (an ``adaptation.evaluation`` other than
+    the algebraic one)."""
+    return not isinstance(EVALUATORS.resolve(config.adaptation.evaluation), Algebraic)
 
 
 def step_options(config: Config) -> StepOptions:
@@ -132,12 +148,12 @@ def step_options(config: Config) -> StepOptions:
 
 
 def prepare(config: Config, in_memory: bool = False, measured: bool = False, **strategies) -> Plan:
-    """The :class:`Plan` of ``config`` (its preset applied for ``measured`` records, see
-    :func:`records_measured`; then ``strategies`` as in :func:`with_strategies`); ``in_memory``: the
-    measurements come from a table given in memory (``auto`` then estimates)."""
-    config = with_preset(config, measured)
+    """The :class:`Plan` of ``config`` (``strategies`` as in :func:`with_strategies`, then its preset
+    for the keys neither gives, applied for ``measured`` records, see :func:`records_measured`);
+    ``in_memory``: the measurements come from a table given in memory (``auto`` then estimates)."""
     if strategies:
         config = with_strategies(config, **strategies)
+    config = with_preset(config, measured)
     a = config.adaptation
     return Plan(config, ModelSpec.from_config(config.model), derivative_estimator(config.data, in_memory),
                 EVALUATORS.resolve(a.evaluation), step_options(config), getattr(torch, a.dtype), torch.device(a.device))

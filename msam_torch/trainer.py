@@ -8,7 +8,8 @@ batch (leading axis T) run together. How a candidate is evaluated and stepped is
 ``evaluator`` (:class:`~msam_torch.evaluators.Evaluator`): :class:`Algebraic` (Eq. 6, the default)
 or the simulation-based evaluator of :mod:`msam_torch.simulation`; the best *state* of each
 candidate (exponents, theta and, in simulation mode, initial states) is what the stages keep and
-hand on. ``diagnostics`` switches on the condition numbers ``cond(Phi^T Phi)`` of every step
+hand on. A loop ends early when a step leaves every candidate of its batch where it was: the step
+being a function of the state, every later one would repeat it. ``diagnostics`` switches on the condition numbers ``cond(Phi^T Phi)`` of every step
 (Figure 5; ``result.cond_scaled`` / ``cond_unscaled`` in the step events, else None): two
 eigendecompositions per candidate and step, so only a listener that records them sets it.
 """
@@ -149,6 +150,8 @@ class Trainer:
             if self.stop_requested:
                 break
             result = evaluator.step(selection, state, current, self.options, conditions=self.diagnostics)
+            if _unmoved(state, result.state):  # the step is a function of the state: every later one repeats this
+                break
             state = result.state
             current = evaluator.evaluate(selection, state, self.options)
             improved = current.fitness > best_fitness
@@ -157,6 +160,14 @@ class Trainer:
                               replace(state, theta=current.theta, theta_fixed=current.theta_fixed, initial=current.initial), best)
             self.trigger(event, iteration=iteration, offset=offset, choices=choices, result=result, evaluation=current)
         return best_fitness, best, state.diverged
+
+
+def _unmoved(old: State, new: State) -> bool:
+    """Whether a step left every candidate where it was (no step size raised a fitness, nor did any
+    candidate diverge): exponents, theta and initial states all equal."""
+    pairs = [(old.gamma, new.gamma), (old.theta, new.theta), (old.theta_fixed, new.theta_fixed),
+             (old.diverged, new.diverged)] + ([(old.initial, new.initial)] if old.initial is not None else [])
+    return all(torch.equal(a, b) for a, b in pairs)
 
 
 def _map_state(fn, *states: State) -> State:

@@ -118,6 +118,20 @@ def test_the_preset_fills_only_keys_not_given_and_only_for_measured_records():
         prepare(load_config(CONFIG, ["adaptation.preset=fast"]), measured=True)
 
 
+def test_models_judged_by_simulation_get_a_damped_line_search_step():
+    """The measured preset's further keys where candidates are simulated, given as a name in the
+    config or as an evaluator object; algebraic evaluation and keys the config gives keep theirs."""
+    from msam_torch.simulation.evaluator import SimulationEvaluator
+
+    by_name = prepare(load_config(CONFIG, ["adaptation.evaluation=simulation", "adaptation.damping=0.5"]), measured=True)
+    by_object = prepare(load_config(CONFIG), measured=True, evaluation=SimulationEvaluator())
+    for plan, damping in ((by_name, 0.5), (by_object, 0.1)):
+        a = plan.config.adaptation
+        assert (a.scaling, a.step_size, a.damping, a.theta) == ("gauss_newton", "line_search", damping, "varpro")
+    algebraic = prepare(load_config(CONFIG), measured=True).config.adaptation
+    assert (algebraic.scaling, algebraic.step_size, algebraic.damping) == ("dm", "eq20", 0.0)
+
+
 def test_the_estimator_gives_the_functional_numbers():
     estimator = MSAM(CONFIG, **QUICK).fit(record(), validation=record(True))
     functional = adapt(CONFIG, [f"adaptation.{k}={v}" for k, v in QUICK.items()], data=record(), validation=record(True))

@@ -16,6 +16,7 @@ from msam_torch.plan import prepare
 from msam_torch.simulation import Parameters, build_model, load_records, output_states, simulate
 from msam_torch.simulation.adapt import prepare_group
 from msam_torch.spec import ModelSpec
+from tests.helpers import measured_case
 
 TANKS = {
     "model": {
@@ -171,3 +172,21 @@ def test_a_diagnosis_whose_candidates_all_diverged_says_so_and_blames_no_candida
     reasons = gap.checks["reasons"]
     assert "every candidate diverged" in reasons[0] and "adaptation.damping" in reasons[1]
     assert not any("do not express" in r for r in reasons)
+
+
+def test_a_measured_record_judged_by_simulation_gets_a_step_that_keeps_the_candidates(tmp_path):
+    """The measured preset's damped line-search step where candidates are simulated (the harmonic
+    oscillator's record as a file, only x compared): no candidate leaves the exponents' range and
+    the winner fits far better than under the undamped dM-scaled step with Eq. 20's mu, which marks
+    four candidates diverged and leaves the rest at gamma = 0."""
+    config, frame = measured_case("harmonic", every=4)
+    frame[["t", "x", "u"]].to_csv(tmp_path / "record.csv", index=False)
+    config["data"] = {"file": "record.csv", "time": "t", "columns": {"x": "x", "u": "u"}}
+    quick = ["adaptation.evaluation=simulation", "adaptation.simulation.output=[x]",
+             "adaptation.round_robin_steps=5", "adaptation.refinement_steps=10"]
+    damped = adapt(config, quick, base_dir=tmp_path).equations[0]
+    undamped = adapt(config, quick + ["adaptation.scaling=dm", "adaptation.step_size=eq20", "adaptation.damping=0"],
+                     base_dir=tmp_path).equations[0]
+    assert damped.diverged == 0 and undamped.diverged == 4
+    assert undamped.exponents[:2] == [0.0, 0.0]
+    assert damped.final["fitness"] > 20 * undamped.final["fitness"]
