@@ -261,8 +261,10 @@ def diagnosis(path: Path, output: str, ts: float, y_std: float, unit: float) -> 
     per_state = held.get("states", {}).get(output)
     nrmse = {m: (per_state[m]["nrmse"] if per_state else held.get("nrmse", {}).get(m, float("nan")))
              for m in ("retuned", "adapted")}
-    effects = [f"{g.target}: {g.effect} ({exponent_text(g.exponent)}, wins {100 * g.confidence['win_frequency']:.0f} % "
-               f"of {g.confidence['bootstrap_trials']})" for g in report.equations if g.significant]
+    wins = lambda c: (f", wins {100 * c['win_frequency']:.0f} % of {c['bootstrap_trials']}" if c.get("bootstrap_trials")
+                      else ", no bootstrap (evaluation by simulation)")
+    effects = [f"{g.target}: {g.effect} ({exponent_text(g.exponent)}{wins(g.confidence)})"
+               for g in report.equations if g.significant]
     return {"verdict": report.verdict, "effects": effects, "adapted": [g.adapted_equation for g in report.equations],
             "retuned": [g.retuned_equation for g in report.equations],
             "at_catalogue_exponent": [g.naming["at_catalogue_exponent"] for g in report.equations
