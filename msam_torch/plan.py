@@ -115,28 +115,23 @@ def records_measured(config: Config, data: DataArgument = None) -> bool:
     return data is not None or config.data.file is not None
 
 
-def with_preset(config: Config, measured: bool) -> Config:
+def with_preset(config: Config, measured: bool, simulated: bool = False) -> Config:
     """``config`` with the keys it does not give filled from its ``adaptation.preset``
-    (``auto``: ``measured`` for measured records, else ``paper``)."""
+    (``auto``: ``measured`` for measured records, else ``paper``); ``simulated``: its candidates
+    are judged by simulation (:data:`SIMULATED`)."""
     name = config.adaptation.preset
     if name == "auto":
         name = "measured" if measured else "paper"
     if name not in PRESETS:
         raise ConfigError("adaptation.preset", f"unknown preset {name!r} (choose from auto, {', '.join(PRESETS)})")
     given = {"data": config.data.model_fields_set, "adaptation": config.adaptation.model_fields_set}
-    preset = {**PRESETS[name], **(SIMULATED[name] if by_simulation(config) else {})}
+    preset = {**PRESETS[name], **(SIMULATED[name] if simulated else {})}
     settings = {(section, key): value for (section, key), value in preset.items() if key not in given[section]}
     if not settings:
         return config
     LOGGER.debug("preset %r: %s (adaptation.preset=paper keeps the paper's step)", name,
                 ", ".join(f"{section}.{key}={value}" for (section, key), value in settings.items()))
     return updated(config, {**settings, ("adaptation", "preset"): name}, f"preset {name!r}")
-
-
-def by_simulation(config: Config) -> bool:
-    """Whether ``config`` judges candidates by simulation (an ``adaptation.evaluation`` other than
-    the algebraic one)."""
-    return not isinstance(EVALUATORS.resolve(config.adaptation.evaluation), Algebraic)
 
 
 def step_options(config: Config) -> StepOptions:
@@ -153,10 +148,11 @@ def prepare(config: Config, in_memory: bool = False, measured: bool = False, **s
     ``in_memory``: the measurements come from a table given in memory (``auto`` then estimates)."""
     if strategies:
         config = with_strategies(config, **strategies)
-    config = with_preset(config, measured)
+    evaluator = EVALUATORS.resolve(config.adaptation.evaluation)
+    config = with_preset(config, measured, simulated=not isinstance(evaluator, Algebraic))
     a = config.adaptation
     return Plan(config, ModelSpec.from_config(config.model), derivative_estimator(config.data, in_memory),
-                EVALUATORS.resolve(a.evaluation), step_options(config), getattr(torch, a.dtype), torch.device(a.device))
+                evaluator, step_options(config), getattr(torch, a.dtype), torch.device(a.device))
 
 
 def make_trainer(plan: Plan, diagnostics: bool = False) -> Trainer:
