@@ -9,9 +9,10 @@ batch (leading axis T) run together. How a candidate is evaluated and stepped is
 or the simulation-based evaluator of :mod:`msam_torch.simulation`; the best *state* of each
 candidate (exponents, theta and, in simulation mode, initial states) is what the stages keep and
 hand on. A loop ends early when a step leaves every candidate of its batch where it was: the step
-being a function of the state, every later one would repeat it. ``diagnostics`` switches on the condition numbers ``cond(Phi^T Phi)`` of every step
-(Figure 5; ``result.cond_scaled`` / ``cond_unscaled`` in the step events, else None): two
-eigendecompositions per candidate and step, so only a listener that records them sets it.
+being a function of the state, every later one would repeat it. ``diagnostics`` switches on the
+condition numbers ``cond(Phi^T Phi)`` of every step (Figure 5; ``result.cond_scaled`` /
+``cond_unscaled`` in the step events, else None): two eigendecompositions per candidate and step,
+so only a listener that records them sets it.
 """
 from __future__ import annotations
 
