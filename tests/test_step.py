@@ -1,9 +1,10 @@
 import torch
 
+from msam_torch.api import adapt
 from msam_torch.candidates import EquationData
 from msam_torch.step import State, StepOptions, evaluate, lstsq, step
 from msam_torch.trainer import Trainer
-from tests.helpers import equation_data
+from tests.helpers import CONFIGS, equation_data
 
 D = torch.float64
 
@@ -75,3 +76,19 @@ def test_trainer_skips_diverged_candidates_in_the_ranking():
     fit = Trainer(StepOptions(gamma_limit=1.5), 15, 5).fit(data, theta.unsqueeze(0), theta_fixed.unsqueeze(0))
     assert bool(fit.diverged.any())  # x|x|^2 needs gamma 2 > the limit
     assert torch.isfinite(fit.final["fitness"]).all()
+
+
+def test_the_loop_ends_once_a_step_moves_no_candidate():
+    """With the line search, the harmonic oscillator's refinement finds no step that raises the
+    fitness after its 10th; a limit of 100 or 300 steps then gives the same fit and the same 10 step
+    events (the loop used to run every step, repeating the last)."""
+    def run(limit):
+        events = []
+        result = adapt(CONFIGS / "harmonic.yaml", ["adaptation.scaling=gauss_newton", "adaptation.step_size=line_search",
+                                                 "adaptation.round_robin_steps=2", f"adaptation.refinement_steps={limit}"],
+                       on_trainer=lambda trainer, eq: trainer.add_callback("refinement_step", lambda t, **k: events.append(1)))
+        return len(events), result.equations[0].exponents, result.equations[0].final["fitness"]
+
+    short, long = run(100), run(300)
+    assert short == long and short[0] == 10
+    assert short[1][:2] == [1.0, 2.0]
