@@ -4,7 +4,8 @@ a 2,000-sample record, on records 10x (and ``--longer``) longer at the same samp
 on one sampled 10x faster over the same time; each run's wall time, its ratio to the 2,000-sample
 run's, the verdict, the exponent with its 90 % bootstrap interval, the test-function half-width and
 the derivative window chosen, and whether the record gives the 1x verdict with an exponent inside
-the 1x record's interval.
+the 1x record's interval, and with the two exponents' difference inside its own interval
+(:func:`agrees_jointly`).
 
     PYTHONPATH=. python experiments/bench_diagnose.py [--threads 1] [--longer 10 50] [--repeats 3]
 
@@ -14,6 +15,7 @@ The time is the diagnosis itself (``GapReport.seconds``: data loading excluded),
 from __future__ import annotations
 
 import argparse
+import math
 import statistics
 from dataclasses import replace
 
@@ -71,6 +73,19 @@ def agrees(row: dict, base: dict) -> bool:
     return row["verdict"] == base["verdict"] and low <= row["exponent"] <= high
 
 
+def agrees_jointly(row: dict, base: dict) -> bool:
+    """Same verdict as ``base``, and the two exponents' difference within its own 90 % interval:
+    each record is a draw with an interval of its own, so the difference's half-width is the root
+    sum of squares of the two intervals' half-widths on the sides facing each other (one exponent
+    inside the other's interval ignores the second's uncertainty and fails more often than 10 %)."""
+    if row["interval"] is None or base["interval"] is None:
+        return agrees(row, base)
+    above = row["exponent"] >= base["exponent"]
+    base_half = (base["interval"][1] - base["exponent"]) if above else (base["exponent"] - base["interval"][0])
+    row_half = (row["exponent"] - row["interval"][0]) if above else (row["interval"][1] - row["exponent"])
+    return row["verdict"] == base["verdict"] and abs(row["exponent"] - base["exponent"]) <= math.hypot(base_half, row_half)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=1)
@@ -84,14 +99,14 @@ def main() -> None:
     base = rows[0][1]["seconds"]
     print(f"{CASE}, {100 * NOISE:g} % noise, {args.threads} torch threads, median of {args.repeats} runs")
     print("| record | samples | diagnosis s | ratio to 1x | verdict | exponent | interval | half-width | decimation "
-          "| derivative window | 1x verdict, exponent in 1x interval |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| derivative window | 1x verdict, exponent in 1x interval | 1x verdict, difference within its interval |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for label, r in rows:
         exponent = "-" if r["exponent"] is None else f"{r['exponent']:.3f}"
         interval = "-" if r["interval"] is None else "{:.3f} to {:.3f}".format(*r["interval"])
         print(f"| {label} | {r['samples']} | {r['seconds']:.2f} | {r['seconds'] / base:.2f} | {r['verdict']} | "
               f"{exponent} | {interval} | {r['half_width']:.3g} | {r['decimation']} | {r['window']} | "
-              f"{'yes' if agrees(r, rows[0][1]) else 'NO'} |")
+              f"{'yes' if agrees(r, rows[0][1]) else 'NO'} | {'yes' if agrees_jointly(r, rows[0][1]) else 'NO'} |")
 
 
 if __name__ == "__main__":

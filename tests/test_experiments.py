@@ -74,13 +74,15 @@ def test_every_experiment_script_imports(script, monkeypatch):
 
 
 def test_interval_coverage_counts_the_intervals_that_hold_the_truth(monkeypatch):
-    """Three draws of Coulomb friction (truth 0): the 90 % interval holds 0 in two, the naming
-    interval (total +- half-width) in all three; the spread and the mean error are the estimates'."""
+    """Three draws of Coulomb friction (truth 0): the 90 % interval holds 0 in two and the
+    noise-free fit (0.03) in two, the naming interval (total +- half-width) 0 in all three; the
+    spread and the mean errors are the estimates'."""
     monkeypatch.syspath_prepend(str(ROOT))
     from experiments.interval_coverage import summary
 
     rows = [{"case": "msd_coulomb", "noise": 0.01, "seed": k, "total": total, "half": 0.2, "interval": interval}
             for k, (total, interval) in enumerate([(0.02, [-0.01, 0.05]), (0.04, [0.01, 0.07]), (-0.03, [-0.06, 0.0])])]
     rows.append({"case": "msd_coulomb", "noise": 0.01, "seed": 3, "total": None})
-    line = summary(rows).splitlines()[-1]
-    assert line.startswith("| msd_coulomb | 0.01 | 3/4 | 2/3 | 3/3 | 0.036 | 0.030 | +0.010 |")
+    line = summary(rows, {"msd_coulomb": 0.03}).splitlines()[-1]
+    assert line == "| msd_coulomb | 0.01 | 3/4 | 2/3 | 2/3 | 3/3 | 0.036 | 0.030 | +0.010 | -0.020 |"
+    assert summary(rows, {"msd_coulomb": None}).splitlines()[-1].endswith("| 2/3 | - | 3/3 | 0.036 | 0.030 | +0.010 | - |")

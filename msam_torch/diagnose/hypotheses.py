@@ -171,9 +171,13 @@ class Fitted:
 
 
 def fit(data: EquationData, choices: torch.Tensor, start: torch.Tensor, options: StepOptions, steps: int,
-        q: int) -> Fitted:
+        q: int, exclude_start: bool = False) -> Fitted:
     """Iterate the step on every trial and hypothesis; keep each one's best state (Algorithm 1);
-    ``q`` adjustable components (slots q to 2q are their additive copies, :func:`encode`)."""
+    ``q`` adjustable components (slots q to 2q are their additive copies, :func:`encode`).
+    ``exclude_start``: ``start`` was fitted to rows that ``data`` leaves out (a cross-fit's held-out
+    block), so the best state is chosen among the stepped ones: kept as a candidate, the start
+    predicts the block from a fit that saw it wherever no step beats it by Eq. 19.
+    """
     selection = data.select(choices)
     t = selection.y.shape[0]
     gamma = start.expand((t,) + choices.shape).to(selection.y.dtype).clone()
@@ -181,7 +185,8 @@ def fit(data: EquationData, choices: torch.Tensor, start: torch.Tensor, options:
     state = State(gamma, zeros(gamma.shape[-1]), zeros(selection.fixed_components.shape[-1]),
                   torch.zeros(gamma.shape[:-1], dtype=torch.bool, device=gamma.device))
     current = evaluate(selection, state, options)
-    best_fitness, best_gamma = current.fitness, state.gamma
+    best_fitness = torch.full_like(current.fitness, -torch.inf) if exclude_start and steps else current.fitness
+    best_gamma = state.gamma
     for _ in range(steps):
         state = step(selection, state, current, options).state
         current = evaluate(selection, state, options)
@@ -211,9 +216,9 @@ def crossed_errors(weak: WeakForm, choices: torch.Tensor, start: torch.Tensor, o
                    q: int, folds: int, reach: int) -> torch.Tensor:
     """Errors (C, M) of every hypothesis on the fitted training rows, each row predicted by a fit of
     the other ``folds`` blocks (:meth:`.weak.WeakForm.folds`; ``steps`` steps from the exponents
-    ``start`` (C, 2Q), the full fit's; 0: theta alone)."""
+    ``start`` (C, 2Q), the full fit's, which saw the block, so never kept; 0: theta alone)."""
     fold, weights = weak.folds(folds, reach)
-    crossed = fit(weak.weighted(weights, torch.zeros_like(weights)), choices, start, options, steps, q)
+    crossed = fit(weak.weighted(weights, torch.zeros_like(weights)), choices, start, options, steps, q, exclude_start=True)
     rows = predict_rows(weak.data, choices, crossed)  # (folds, C, M); unweighted on the fitted rows
     fitted = torch.nonzero(fold >= 0).squeeze(-1)
     return rows[fold[fitted], :, fitted].T - weak.data.y[0][fitted]
