@@ -87,8 +87,8 @@ class Estimation:
         t = self.train["t"]
         n = (t.shape[-1] - 1) // self.refinement + 1
         draws = lambda level: torch.randn(trials, n, generator=generator, dtype=t.dtype) * level / self.decimation**0.5
-        return {name: refined(draws(level).to(t.device), self.refinement, not _held(self.info))
-                for name, level in levels.items()}
+        shape = "band-limited" if not _held(self.info) else "cubic" if self.decimation == 1 else "linear"
+        return {name: refined(draws(level).to(t.device), self.refinement, shape) for name, level in levels.items()}
 
 
 def _measured(dataset: Dataset) -> dict[str, np.ndarray]:
@@ -98,32 +98,35 @@ def _measured(dataset: Dataset) -> dict[str, np.ndarray]:
 
 @dataclass(frozen=True)
 class Kink:
-    """The starting model's rate of a signal (``T`` of ``T_dot``), read where a held input it reads
-    switches (:mod:`~msam_torch.hold`): the rate's jump and its slope in the signal."""
+    """The starting model's rate of a signal (``T`` of ``T_dot``) whose equation reads an input, at the
+    samples of a record where it is held (:mod:`~msam_torch.hold`): on either side of each sample
+    (where the input switches, the rate jumps: the signal kinks), and its slope in the signal."""
 
     signal: str
     inputs: tuple[str, ...]  # the inputs the rate reads
     model: EquationModel  # the starting model of the signal's equation
 
-    def at(self, measured: dict, k: np.ndarray, switching: list) -> tuple[np.ndarray, np.ndarray] | None:
-        """At the switch samples ``k``: the rate with the inputs of ``switching`` after the switch less
-        the rate before, and the rate's slope in the signal (both at the sample's state); None where
-        the rate reads a signal the record lacks or cannot be evaluated there."""
+    def at(self, measured: dict, k: np.ndarray, switching: list) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """At samples ``k``: the rate with the inputs of ``switching`` as held after the sample, as
+        held before it (from the sample before; the first sample's own), and the rate's slope in the
+        signal (all at the sample's state); None where the rate reads a signal the record lacks or
+        cannot be evaluated there."""
         names = self.model.equation.signals - {self.model.equation.target, "t"}
         if not names <= set(measured):
             return None
         at = lambda n, i: torch.as_tensor(measured[n][i], dtype=torch.float64).unsqueeze(0)  # (1, K): one model row
         after = {n: at(n, k) for n in names}
-        before = {**after, **{u: at(u, k - 1) for u in switching}}
+        before = {**after, **{u: at(u, np.maximum(k - 1, 0)) for u in switching}}
         own = after[self.signal].clone().requires_grad_(True) if self.signal in names else None
         try:
             rate = self.model.rate({**after, **({} if own is None else {self.signal: own})})[0]
-            jump = rate.detach() - self.model.rate(before)[0]
+            earlier = self.model.rate(before)[0]
         except MSAMError:
             return None
         slope = None if own is None else torch.autograd.grad(rate.sum(), own, allow_unused=True)[0]
-        slope = torch.zeros_like(jump) if slope is None else slope
-        return jump.broadcast_to(k.shape).numpy(), slope.reshape(-1).broadcast_to(k.shape).numpy()
+        slope = torch.zeros_like(rate) if slope is None else slope
+        shaped = lambda v: v.detach().reshape(-1).broadcast_to(k.shape).numpy()
+        return shaped(rate), shaped(earlier), shaped(slope)
 
 
 def kinking(spec: ModelSpec, theta: Mapping[str, torch.Tensor] | None = None) -> dict[str, Kink]:
@@ -168,21 +171,26 @@ def refitted(kinks: Mapping[str, Kink], signals: Mapping[str, torch.Tensor],
 
 
 def _signals(measured: dict, every: int, band: float, data: DataConfig, spec: ModelSpec, dtype,
-             estimator: DerivativeEstimator, exact: bool, source: str, kinks: dict) -> tuple[dict, dict]:
+             estimator: DerivativeEstimator, exact: bool, source: str, kinks: dict) -> tuple[dict, dict, dict]:
     """Decimated measured signals (held inputs as their quadrature values, the states' kinks at
     their switches corrected by ``kinks``, :mod:`~msam_torch.hold`) with the derivatives the model
-    reads that they lack; and how they were formed (the derivative estimates, each input's assumed
-    hold, the kink-corrected signals)."""
+    reads that they lack; how they were formed (the derivative estimates, each input's assumed
+    hold, the kink-corrected signals); and, where the record is not decimated, the shapes of its
+    held inputs and kink-corrected states between samples (:func:`_refined`): the held inputs' samples,
+    the states' :class:`~msam_torch.hold.Sides`."""
     t = measured["t"][::every]
-    measured, held, kinks = hold.represent(measured, spec.inputs, data.input_hold, kinks)
+    raw = measured
+    measured, held, kinks, sides = hold.represent(measured, spec.inputs, data.input_hold, kinks)
+    shapes = {**{u: raw[u] for u, how in held.items() if how == "zoh"}, **sides} if every == 1 else {}
     kept = {k: decimate(v, every) for k, v in measured.items() if k != "t"}
     if exact:  # every signal given (noise-free simulation): nothing to estimate
         return ({"t": torch.tensor(t, dtype=dtype), **{k: torch.tensor(np.ascontiguousarray(v), dtype=dtype)
                                                         for k, v in kept.items()}},
-                {"derivatives": "given", "input_hold": held, "kinks_corrected": kinks})
+                {"derivatives": "given", "input_hold": held, "kinks_corrected": kinks}, shapes)
     dataset = build_dataset(t, kept, data, spec, {}, dtype, source, InBand(estimator, min(band * every, 0.45)),
                             keep_measured=True)
-    return dataset.signals, {"derivatives": dataset.info["derivatives"], "input_hold": held, "kinks_corrected": kinks}
+    return (dataset.signals, {"derivatives": dataset.info["derivatives"], "input_hold": held, "kinks_corrected": kinks},
+            shapes)
 
 
 def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset | None,
@@ -202,7 +210,7 @@ def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset 
     every = max(1, min(t.size // samples, int(1 / (SAMPLES_PER_PERIOD * band)), int(half_width / (QUADRATURE * dt))))
     exact = not train.measured
     device, dtype = train.t.device, train.t.dtype
-    def build(d: Dataset, source: str, kinks: dict) -> tuple[dict, dict, float]:
+    def build(d: Dataset, source: str, kinks: dict) -> tuple[dict, dict, dict, float]:
         """A record's signals, decimated to about the training record's decimated sample time
         (rules in time units: a held-out record may be sampled at another rate)."""
         step = float(d.t[1] - d.t[0])
@@ -214,18 +222,19 @@ def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset 
             raise DataError(f"after decimation by {k}: {error}") from None
 
     kinks = kinking(spec)
-    signals, formed, period = build(train, "training data", kinks)
+    signals, formed, shapes, period = build(train, "training data", kinks)
     if formed["kinks_corrected"]:  # again, with the jumps and slopes of the starting model re-fitted to the record
         kinks = kinking(spec, refitted(kinks, signals, half_width))
-        signals, formed, period = build(train, "training data", kinks)
+        signals, formed, shapes, period = build(train, "training data", kinks)
     held = None if held_out is None else build(held_out, "held-out data", kinks)
     # interpolated at most REFINE-fold, and to at most QUADRATURE * samples samples (the cost of every fit)
     budget = QUADRATURE * samples // signals["t"].shape[-1]
     fold = max(1, min(REFINE, math.ceil(QUADRATURE * period / half_width), budget)) if refine else 1
-    refined_to = lambda d: _refined(d[0], d[1], max(1, round(fold * d[2] / period)), device)  # the same spacing
-    signals, held = refined_to((signals, formed, period)), None if held is None else refined_to(held)
+    refined_to = lambda d: _refined(*d[:3], max(1, round(fold * d[3] / period)), device)  # the same spacing
+    signals, held = refined_to((signals, formed, shapes, period)), None if held is None else refined_to(held)
     form = "measured (unsmoothed)" if not exact else "given (exact)"
-    how = "linearly" if _held(formed) else "band-limited"
+    how = ("band-limited" if not _held(formed) else "linearly" if not shapes else
+           "by local cubics (held inputs as held, kinking states along the starting model's rates)")
     info = {"band_edge": band / dt, "band_edges": {k: v / dt for k, v in edges.items()}, "half_width_rule": rule,
             "decimation": every, "derivative_cutoff": min(DERIVATIVE_MARGIN * band, 0.45) / dt,
             "weak_form_signals": form + (f", interpolated {how} {fold}-fold between samples" if fold > 1 else ""),
@@ -237,26 +246,42 @@ def _held(formed: dict) -> bool:
     return any(b == "zoh" for b in formed["input_hold"].values())
 
 
-def _refined(signals: dict, formed: dict, k: int, device) -> dict:
-    """A record's weak-form signals on ``device``, interpolated ``k``-fold (:func:`refined`): linearly
-    where an input is held (its states kink at every switch, and a band-limited interpolation rings
-    there), else band-limited."""
-    smooth = not _held(formed)
-    return {name: refined(v.to(device), k, smooth and name != "t") for name, v in signals.items()}
+def _refined(signals: dict, formed: dict, shapes: dict, k: int, device) -> dict:
+    """A record's weak-form signals on ``device``, interpolated ``k``-fold (:func:`refined`):
+    band-limited where no input is held; where one is (its states kink at every switch, and a
+    band-limited interpolation rings there), by their ``shapes`` between samples (:func:`_signals`):
+    a kinking state along the starting model's rates (:func:`~msam_torch.hold.hermite`), a held
+    input as held (:func:`~msam_torch.hold.held_finer`), every other signal by local cubics
+    (:func:`~msam_torch.hold.local_cubic`), so that every signal is as exact between samples as the
+    others (a straight line between samples is the samples seen through a wider test function, and
+    the quadrature is consistent only where every signal is seen through it); linearly where the
+    record was decimated (no shapes)."""
+    if k <= 1:
+        return {name: v.to(device) for name, v in signals.items()}
+    shape = "band-limited" if not _held(formed) else "cubic" if shapes else "linear"
+    out = {name: refined(v.to(device), k, "linear" if name == "t" else shape) for name, v in signals.items()}
+    dt = float(signals["t"][1] - signals["t"][0])
+    for name, given in shapes.items():
+        fine = hold.hermite(given, k, dt) if isinstance(given, hold.Sides) else hold.held_finer(given, k)
+        out[name] = torch.as_tensor(fine, dtype=out[name].dtype, device=device)
+    return out
 
 
-def refined(signal: torch.Tensor, k: int, band_limited: bool = False) -> torch.Tensor:
+def refined(signal: torch.Tensor, k: int, shape: str = "linear") -> torch.Tensor:
     """A signal (time on its last axis) interpolated ``k``-fold between its samples: where a
     half-width holds fewer than :data:`QUADRATURE` samples, the weak form's quadrature of a candidate
     function (``sign(v)`` of a speed that reverses within a few samples) needs points between them.
-    Linearly, or band-limited (the polyphase low-pass of :func:`scipy.signal.resample_poly`), which
-    keeps a smooth function of a signal within a few tenths of a percent of its weak form where linear
+    ``shape``: ``linear``, ``cubic`` (local cubics, :func:`~msam_torch.hold.local_cubic`) or
+    ``band-limited`` (the polyphase low-pass of :func:`scipy.signal.resample_poly`); the last two keep
+    a smooth function of a signal within a few tenths of a percent of its weak form where linear
     interpolation is off by several percent."""
     if k <= 1:
         return signal
     n = signal.shape[-1]
-    if band_limited:
-        fine = resample_poly(signal.detach().cpu().numpy(), k, 1, axis=-1, padtype="line")[..., :(n - 1) * k + 1]
+    if shape != "linear":
+        values = signal.detach().cpu().numpy()
+        fine = (resample_poly(values, k, 1, axis=-1, padtype="line")[..., :(n - 1) * k + 1] if shape == "band-limited"
+                else hold.local_cubic(values, k))
         return torch.as_tensor(np.ascontiguousarray(fine), dtype=signal.dtype, device=signal.device)
     position = torch.arange((n - 1) * k + 1, device=signal.device, dtype=torch.float64) / k
     left = position.floor().long().clamp(max=n - 2)

@@ -69,11 +69,11 @@ def test_refined_keeps_the_samples_and_interpolates_linearly_between_them():
     assert refined(signal, 1) is signal
 
 
-@pytest.mark.parametrize("function, coarse, linear, band_limited", [
-    (torch.sign, (0.25, None), (None, 0.12), (None, 0.1)),  # where a speed reverses between samples
-    (lambda x: x**3, (None, 0.002), (0.08, None), (None, 0.006)),  # smooth: linear interpolation distorts it
+@pytest.mark.parametrize("function, coarse, linear, band_limited, cubic", [
+    (torch.sign, (0.25, None), (None, 0.12), (None, 0.1), (None, 0.1)),  # where a speed reverses between samples
+    (lambda x: x**3, (None, 0.002), (0.08, None), (None, 0.006), (None, 0.006)),  # smooth: linear interpolation distorts it
 ])
-def test_sub_sample_quadrature(function, coarse, linear, band_limited):
+def test_sub_sample_quadrature(function, coarse, linear, band_limited, cubic):
     """A signal at 0.15 cycles per sample (two tones), test functions of 4 samples' half-width (its
     band edge's): the weak form of ``sign(x)`` on the samples misses where between them the sign
     switches (about 33 % error against a 64-fold quadrature of the signal itself); interpolated
@@ -86,11 +86,12 @@ def test_sub_sample_quadrature(function, coarse, linear, band_limited):
     fine = refined(t, 64)
     truth = weak.TestFunctions.spanning(fine, 4.0).integrate_signal(function(signal(fine)))[5:-5]
     errors = {}
-    for name, k, smooth in (("coarse", 1, False), ("linear", 4, False), ("band_limited", 4, True)):
-        rows = weak.TestFunctions.spanning(refined(t, k), 4.0).integrate_signal(function(refined(signal(t), k, smooth)))
+    for name, k, shape in (("coarse", 1, "linear"), ("linear", 4, "linear"), ("band_limited", 4, "band-limited"),
+                           ("cubic", 4, "cubic")):
+        rows = weak.TestFunctions.spanning(refined(t, k), 4.0).integrate_signal(function(refined(signal(t), k, shape)))
         assert rows.shape[0] == truth.shape[0] + 10  # the same test functions, on a finer grid
         errors[name] = float((rows[5:-5] - truth).norm() / truth.norm())
-    for name, (low, high) in {"coarse": coarse, "linear": linear, "band_limited": band_limited}.items():
+    for name, (low, high) in {"coarse": coarse, "linear": linear, "band_limited": band_limited, "cubic": cubic}.items():
         assert (low is None or errors[name] > low) and (high is None or errors[name] < high), (name, errors)
 
 
@@ -102,8 +103,8 @@ def test_sub_sample_quadrature(function, coarse, linear, band_limited):
 def test_the_diagnosis_interpolates_records_whose_half_width_holds_few_samples(half_width, refine, samples, fold,
                                                                                held):
     """k = ceil(16 samples / half-width), the half-width at least 4 samples (1.0 is raised to 4), the
-    record at most 16 x ``samples`` long; band-limited, or linearly (keeping the samples) where an
-    input is held."""
+    record at most 16 x ``samples`` long; band-limited, or where an input is held by local cubics
+    (keeping the samples)."""
     t = torch.arange(400, dtype=torch.float64)
     q = torch.sin(0.3 * t)
     tau = torch.sign(torch.sin(0.05 * t)) if held else torch.cos(0.2 * t)
@@ -115,5 +116,6 @@ def test_the_diagnosis_interpolates_records_whose_half_width_holds_few_samples(h
     for signals in (estimation.train, estimation.held_out):
         assert signals["t"].shape == ((400 - 1) * fold + 1,) and torch.equal(signals["t"][::fold], t)
         torch.testing.assert_close(signals["q"][::fold], q, rtol=0, atol=0 if held or fold == 1 else 2e-3)
-    how = "linearly" if held else "band-limited"
-    assert (f"interpolated {how} {fold}-fold" in estimation.info["weak_form_signals"]) == (fold > 1)
+    how = "by local cubics" if held else "band-limited"
+    assert (f"interpolated {how}" in estimation.info["weak_form_signals"]) == (fold > 1)
+    assert (f" {fold}-fold" in estimation.info["weak_form_signals"]) == (fold > 1)
