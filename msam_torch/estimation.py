@@ -87,7 +87,7 @@ class Estimation:
         t = self.train["t"]
         n = (t.shape[-1] - 1) // self.refinement + 1
         draws = lambda level: torch.randn(trials, n, generator=generator, dtype=t.dtype) * level / self.decimation**0.5
-        shape = "band-limited" if not _held(self.info) else "cubic" if self.decimation == 1 else "linear"
+        shape = _between(_held(self.info), self.decimation > 1)
         return {name: refined(draws(level).to(t.device), self.refinement, shape) for name, level in levels.items()}
 
 
@@ -233,8 +233,9 @@ def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset 
     refined_to = lambda d: _refined(*d[:3], max(1, round(fold * d[3] / period)), device)  # the same spacing
     signals, held = refined_to((signals, formed, shapes, period)), None if held is None else refined_to(held)
     form = "measured (unsmoothed)" if not exact else "given (exact)"
-    how = ("band-limited" if not _held(formed) else "linearly" if not shapes else
-           "by local cubics (held inputs as held, kinking states along the starting model's rates)")
+    how = {"band-limited": "band-limited", "linear": "linearly",
+           "cubic": "by local cubics (held inputs as held, kinking states along the starting model's rates)"}[
+        _between(_held(formed), not shapes)]
     info = {"band_edge": band / dt, "band_edges": {k: v / dt for k, v in edges.items()}, "half_width_rule": rule,
             "decimation": every, "derivative_cutoff": min(DERIVATIVE_MARGIN * band, 0.45) / dt,
             "weak_form_signals": form + (f", interpolated {how} {fold}-fold between samples" if fold > 1 else ""),
@@ -244,6 +245,13 @@ def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset 
 
 def _held(formed: dict) -> bool:
     return any(b == "zoh" for b in formed["input_hold"].values())
+
+
+def _between(held: bool, decimated: bool) -> str:
+    """The shape (:func:`refined`) of a record's signals between samples: band-limited where no input
+    is held; local cubics where one is, linear where that record was also decimated (its kinks
+    smeared by the anti-alias filter, its shapes unknown)."""
+    return "band-limited" if not held else "linear" if decimated else "cubic"
 
 
 def _refined(signals: dict, formed: dict, shapes: dict, k: int, device) -> dict:
@@ -258,7 +266,7 @@ def _refined(signals: dict, formed: dict, shapes: dict, k: int, device) -> dict:
     record was decimated (no shapes)."""
     if k <= 1:
         return {name: v.to(device) for name, v in signals.items()}
-    shape = "band-limited" if not _held(formed) else "cubic" if shapes else "linear"
+    shape = _between(_held(formed), not shapes)
     out = {name: refined(v.to(device), k, "linear" if name == "t" else shape) for name, v in signals.items()}
     dt = float(signals["t"][1] - signals["t"][0])
     for name, given in shapes.items():

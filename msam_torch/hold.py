@@ -109,15 +109,15 @@ class Sides:
         return k[(k > 0) & (k < self.samples.size - 1)]
 
 
-def cubic(x: np.ndarray, left: np.ndarray, right: np.ndarray, k: int) -> np.ndarray:
-    """Samples ``x`` (time on the last axis) interpolated ``k``-fold by a cubic per cell: through the
-    cell's two samples with rates (per sample step) ``left`` at its start and ``right`` at its end
-    (``left[m]``, ``right[m + 1]`` for cell ``m``)."""
+def cubic(x: np.ndarray, start: np.ndarray, end: np.ndarray, k: int) -> np.ndarray:
+    """Samples ``x`` (time on the last axis, N) interpolated ``k``-fold by a cubic per cell: through
+    the cell's two samples with rates (per sample step, N - 1 each) ``start`` and ``end`` at its
+    ends (rates equal to the cell's change give its straight line)."""
     n = x.shape[-1]
     s = (np.arange((n - 1) * k) % k) / k
     m = np.arange((n - 1) * k) // k
     a, b = x[..., m], x[..., m + 1]
-    fine = a + (3 * s**2 - 2 * s**3) * (b - a) + (s**3 - 2 * s**2 + s) * left[..., m] + (s**3 - s**2) * right[..., m + 1]
+    fine = a + (3 * s**2 - 2 * s**3) * (b - a) + (s**3 - 2 * s**2 + s) * start[..., m] + (s**3 - s**2) * end[..., m]
     return np.concatenate([fine, x[..., -1:]], axis=-1)
 
 
@@ -129,7 +129,7 @@ def local_cubic(x: np.ndarray, k: int) -> np.ndarray:
     through the record."""
     p = np.concatenate([2 * x[..., :1] - x[..., 2:0:-1], x, 2 * x[..., -1:] - x[..., -2:-4:-1]], axis=-1)
     rate = (-p[..., 4:] + 8 * p[..., 3:-1] - 8 * p[..., 1:-3] + p[..., :-4]) / 12
-    return cubic(x, rate, rate, k)
+    return cubic(x, rate[..., :-1], rate[..., 1:], k)
 
 
 def hermite(sides: Sides, k: int, dt: float) -> np.ndarray:
@@ -137,11 +137,11 @@ def hermite(sides: Sides, k: int, dt: float) -> np.ndarray:
     the cubic with end rates ``after`` (start) and ``before`` (end), where the cell's ``r = dt
     |slope|`` is at most :data:`SAMPLED`, else the straight line; then each switch's kink corrected
     at the fine step (:func:`kink_corrected`)."""
-    x, n = sides.samples, sides.samples.size
+    x = sides.samples
     sampled = np.abs(dt * sides.slope) <= SAMPLED
-    cell = np.minimum(np.arange((n - 1) * k + 1) // k, n - 2)
-    line = x[cell] + (np.arange((n - 1) * k + 1) / k - cell) * (x[cell + 1] - x[cell])
-    fine = np.where(sampled[cell], cubic(x, dt * sides.after, dt * sides.before, k), line)
+    chord = np.diff(x)
+    fine = cubic(x, np.where(sampled[:-1], dt * sides.after[:-1], chord),
+                 np.where(sampled[:-1], dt * sides.before[1:], chord), k)
     switches = sides.switches()
     switches = switches[sampled[switches]]
     corrected = kink_corrected(fine, k * switches, (sides.after - sides.before)[switches], sides.slope[switches],
