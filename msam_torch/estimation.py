@@ -80,6 +80,11 @@ class Estimation:
         windows = [d.get("window") or 0 for d in derivatives.values()] if isinstance(derivatives, dict) else []
         return max(windows, default=0) * self.refinement
 
+    def held_inputs(self, label: str) -> tuple[str, ...]:
+        """The inputs the record ``label`` ('train' or 'held_out') holds between samples."""
+        holds = self.info.get("input_hold" if label == "train" else "held_out_input_hold", {})
+        return tuple(u for u, how in holds.items() if how == "zoh")
+
     def noise(self, levels: Mapping[str, float], trials: int, generator: torch.Generator) -> dict[str, torch.Tensor]:
         """``trials`` draws (T, N) of white measurement noise of each signal's ``levels`` (standard
         deviation per recorded sample) as the training signals carry it: about ``1 / decimation``
@@ -226,12 +231,12 @@ def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset 
     if formed["kinks_corrected"]:  # again, with the jumps and slopes of the starting model re-fitted to the record
         kinks = kinking(spec, refitted(kinks, signals, half_width))
         signals, formed, shapes, period = build(train, "training data", kinks)
-    held = None if held_out is None else build(held_out, "held-out data", kinks)
+    other = None if held_out is None else build(held_out, "held-out data", kinks)
     # interpolated at most REFINE-fold, and to at most QUADRATURE * samples samples (the cost of every fit)
     budget = QUADRATURE * samples // signals["t"].shape[-1]
     fold = max(1, min(REFINE, math.ceil(QUADRATURE * period / half_width), budget)) if refine else 1
     refined_to = lambda d: _refined(*d[:3], max(1, round(fold * d[3] / period)), device)  # the same spacing
-    signals, held = refined_to((signals, formed, shapes, period)), None if held is None else refined_to(held)
+    signals, held = refined_to((signals, formed, shapes, period)), None if other is None else refined_to(other)
     form = "measured (unsmoothed)" if not exact else "given (exact)"
     how = {"band-limited": "band-limited", "linear": "linearly",
            "cubic": "by local cubics (held inputs as held, kinking states along the starting model's rates)"}[
@@ -240,6 +245,8 @@ def choose(spec: ModelSpec, data: DataConfig, train: Dataset, held_out: Dataset 
             "decimation": every, "derivative_cutoff": min(DERIVATIVE_MARGIN * band, 0.45) / dt,
             "weak_form_signals": form + (f", interpolated {how} {fold}-fold between samples" if fold > 1 else ""),
             "refinement": fold, **formed}
+    if other is not None:  # each record's inputs as it holds them (a held-out record may be stepped where training is smooth)
+        info["held_out_input_hold"] = other[1]["input_hold"]
     return Estimation(signals, held, half_width, every, info, fold)
 
 

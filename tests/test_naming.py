@@ -426,3 +426,39 @@ def test_a_name_is_told_apart_from_another_entry_at_its_catalogue_exponent():
     far = summary(*args, Pinned(evidence(torch.stack([2 * base])), ["quadratic drag"], ["y = drag"], [1]))
     assert far["rival"] == "quadratic drag at its catalogue exponent" and far["apart_p"] == 0.5**10  # every block
     assert alone["rival_equation"] is None
+
+
+def test_a_law_held_too_loosely_that_predicts_better_makes_the_verdict_inconclusive():
+    """A heated body's radiation at 0.5 % noise (zoo seed 32943): the exchange law fits the
+    held-out rows 19 times better than the best admissible effect, a multiplicative T|T|^0.24, but
+    holds its total exponent only to 3.48 +- 1.04. That law, not the worse one, decides: the
+    verdict is inconclusive and says why. A loose law that does not beat the reference by the null
+    rule's margin, or one whose interval rests on too few trials (inf), changes nothing."""
+    from msam_torch.diagnose.catalogue import NOT_CATALOGUED
+    from msam_torch.diagnose.equation import _loose
+    from msam_torch.diagnose.hypotheses import Hypothesis
+    from msam_torch.diagnose.verdict import equation_verdict
+    model = {"states": ["T"], "inputs": ["Ta"], "parameters": {"h": 0.1},
+             "equations": [{"target": "T_dot", "components": [{"term": "T", "theta": "-h"},
+                                                              {"term": "Ta", "theta": "h", "adjustable": False}],
+                            "adjustments": ["abs(T)"]}]}
+    equation = ModelSpec.from_config(load_config({"model": model, "data": {"time": "t"}}).model).equations[0]
+    hypotheses = [Hypothesis("retuned"), Hypothesis("multiplicative", 0, 0), Hypothesis("exchange", 0, 0, 1.5, ("Ta",))]
+    details = [None, {"total_exponent": 1.24, "half_width": 0.2, "on": "T", "consistent": []},
+               {"total_exponent": 3.48, "half_width": 1.04, "on": "T", "consistent": ["radiation"]}]
+    named = Naming(["no significant gap", NOT_CATALOGUED, NOT_CATALOGUED], torch.tensor([True, True, False]), details,
+                   torch.tensor([False, False, True]))
+    rmse = torch.tensor([47.58, 38.73, 2.07], dtype=torch.float64)
+    options = DiagnoseOptions()
+    loose = _loose(equation, hypotheses, named, rmse, 1, 47.58, options)
+    assert "predicts the held-out rows better than the best effect whose exponent is held" in loose
+    assert "RMSE 2.07 vs 38.73" in loose and "3.48 ± 1.04 on T (radiation within)" in loose
+    sure = {"apart_p": 0.0, "rival": None, "win_frequency": 1.0}
+    kind, reasons = equation_verdict(True, NOT_CATALOGUED, sure, 0.0, {"failed": []}, options, loose)
+    assert kind is Verdict.INCONCLUSIVE and "do not fix the law" in reasons[0]
+    assert equation_verdict(False, NOT_CATALOGUED, sure, 0.0, {"failed": []}, options, None)[0] is Verdict.NO_GAP
+    rmse[2] = 37.5  # better by less than the null rule's 5 %
+    assert _loose(equation, hypotheses, named, rmse, 1, 47.58, options) is None
+    rmse[2] = 2.07
+    named = Naming(named.names, named.admissible, details, torch.tensor([False, False, False]))  # inf: too few trials
+    assert _loose(equation, hypotheses, named, rmse, 1, 47.58, options) is None

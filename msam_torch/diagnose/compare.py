@@ -55,14 +55,15 @@ def check_solver(method: str) -> None:
 
 
 def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, series: dict, options: DiagnoseOptions,
-            band: float = math.inf, starts: dict | None = None, held: tuple[str, ...] = ()) -> dict:
+            band: float = math.inf, starts: dict | None = None, held: dict | None = None) -> dict:
     """One-step and free-run measures of the three models on training and held-out data; the
     arrays the plots draw are added to ``series`` (per target); ``band``: the band edge of the
     measured states (cycles per time unit), which bounds a fixed solver step. The free runs are
     scored against the states as recorded (not as the data loader smoothed them) and start from
     ``starts[label]``'s first samples where given (the diagnosis's own view of each record: its
-    weak-form signals), else from the dataset's, under the inputs as recorded (``held``: held between
-    samples, as the weak form reads them, else interpolated linearly). A free run that diverges (not finite, or NRMSE
+    weak-form signals), else from the dataset's, under the inputs as recorded (``held[label]``: the
+    inputs that record holds between samples, as the weak form reads them; the others interpolated
+    linearly). A free run that diverges (not finite, or NRMSE
     above :data:`DIVERGED`) is listed in ``diverged`` and has no NRMSE.
 
     Held-out data are simulated with every bootstrap trial's models (for the interval of the gap
@@ -81,7 +82,7 @@ def compare(spec: ModelSpec, models: list[EquationModel], train, held_out, serie
     if not options.free_run:
         return out
     batches = {label: models if label == list(sets)[-1] else [_first(m, 3) for m in models] for label in sets}
-    trajectories, solvers = _simulate_sets(spec, sets, batches, options, band, starts or {}, held)
+    trajectories, solvers = _simulate_sets(spec, sets, batches, options, band, starts or {}, held or {})
     for label, dataset in sets.items():
         s, trajectory = recorded(dataset), trajectories[label]
         measured = [x for x in spec.states if x in dataset.info.get("measured", spec.states)] or list(spec.states)
@@ -110,9 +111,9 @@ def recorded(dataset) -> dict:
 
 
 def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: DiagnoseOptions, band: float,
-                   starts: dict, held: tuple[str, ...]) -> tuple:
+                   starts: dict, held: dict) -> tuple:
     """Free runs from each set's first state (``starts[label]``, else the set's) under its inputs;
-    sets on the same time grid are integrated in one batch. A fixed-step solver without a given step starts at
+    sets on the same time grid that hold the same inputs are integrated in one batch. A fixed-step solver without a given step starts at
     :func:`_first_step` (a share of the band's period within the models' stability interval) and halves it
     until the three point models' runs at the step and at twice it agree (:func:`converged`) over
     the first :data:`CHECK_STEPS` steps, at most :data:`HALVINGS` times (each set's ``solver``
@@ -121,7 +122,7 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
     adaptive solver keeps its tolerances, ``atol`` relative to each state's measured magnitude."""
     grids = {label: d.signals["t"] for label, d in sets.items()}
     same = len(sets) == 2 and grids["train"].shape == grids["held_out"].shape and torch.allclose(
-        grids["train"], grids["held_out"])
+        grids["train"], grids["held_out"]) and set(held.get("train", ())) == set(held.get("held_out", ()))
     groups = [list(sets)] if same else [[label] for label in sets]
     fixed = options.solver in TABLEAUS
     result, steps = {}, {}
@@ -136,7 +137,7 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
         stiff = False
         if auto:
             step, stiff = _first_step(spec, {label: sets[label] for label in group}, batches, starts, options.solver,
-                                      band, t)
+                                      band, t, bool(held.get(group[0])))
         seen = lambda u: anti_aliased(u, dt, 2 * step if auto else step) if fixed else u
         inputs = {u: torch.cat([seen(sets[label].signals[u]).expand(n, -1) for label, n in zip(group, sizes)])
                   for u in spec.inputs}
@@ -147,7 +148,7 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
         run = lambda models, step, n, keep=None: simulate(
             spec, models, t[:n], {u: (v if keep is None else v[keep])[..., :n] for u, v in inputs.items()},
             {x: v if keep is None else v[keep] for x, v in initial.items()}, method=options.solver, step=step,
-            rtol=options.rtol, atol=atol, scale=scale, held=held)
+            rtol=options.rtol, atol=atol, scale=scale, held=held.get(group[0], ()))
         if auto:  # the run at twice the step agrees, or the step is halved
             n = max(2, int((t <= t[0] + CHECK_STEPS * step).sum()))
             points = torch.cat([torch.arange(o, o + 3) for o in torch.tensor([0] + sizes[:-1]).cumsum(0).tolist()])
@@ -179,14 +180,16 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
 
 
 def _first_step(spec: ModelSpec, sets: dict, batches: dict, starts: dict, method: str, band: float,
-                t: torch.Tensor) -> tuple[float, bool]:
+                t: torch.Tensor, held: bool = False) -> tuple[float, bool]:
     """A fixed step's start: :data:`PER_PERIOD` of the band's period, at most 1/:data:`STEPS` of the
     record and half :data:`STABLE_SHARE` of the step the fastest decaying mode of the three point
     models allows (:func:`~msam_torch.simulation.equations.fastest_decay` along the records: the
     check's run at twice the step is stable too), at
     least 1/:data:`STIFF_SUBSTEPS` of the sample period (below it the models are too stiff for a
     fixed step: the second value); below the sample period, its nearest divisor, so that a held
-    input switches between steps."""
+    input switches between steps. Where the records hold an input (``held``), at most half the
+    sample period and an even divisor of it: the check's run at twice the step, too, meets every
+    switch at a step's end."""
     dt = float(t[1] - t[0])
     decay = max(float(fastest_decay(spec, [_first(m, 3) for m in batches[label]],
                                     _points(spec, sets[label], starts.get(label))).max()) for label in sets)
@@ -194,6 +197,8 @@ def _first_step(spec: ModelSpec, sets: dict, batches: dict, starts: dict, method
     step = min(float(t[-1] - t[0]) / STEPS, PER_PERIOD / band, stable)
     stiff = step < dt / STIFF_SUBSTEPS
     step = max(step, dt / STIFF_SUBSTEPS)
+    if held:
+        return dt / (2 * math.ceil(dt / (2 * step))), stiff
     return (dt / round(dt / step) if step < dt else step), stiff
 
 

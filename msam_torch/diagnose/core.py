@@ -81,7 +81,7 @@ def _diagnose_once(config: Config, data: DataArgument, validation: DataArgument,
     step(LOGGER, "diagnose", "comparing the models", total - 1, total)
     gap_measures = compare(spec, [e.model for e in equations], train, held_out, series, options,
                            estimation.info["band_edge"], {"train": estimation.train, "held_out": estimation.held_out},
-                           tuple(u for u, how in estimation.info["input_hold"].items() if how == "zoh"))
+                           {label: estimation.held_inputs(label) for label in ("train", "held_out")})
     kind, verdict, reasons = overall(gaps, any(g.significant for g in gaps), name_targets=len(gaps) > 1,
                                      free_run=gap_measures.get("free_run"))
     gaps = demoted(gaps, kind, reasons)

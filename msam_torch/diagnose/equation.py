@@ -107,7 +107,9 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
                              options.check_level, options.max_residual_structure, options.absolute,
                              options.relative, estimation.reach,
                              noise * float(torch.linalg.vector_norm(weak.val_tests.kernels[order])))
-    kind, reasons = equation_verdict(is_significant, outcome, sure, structure, checks, options)
+    kind, reasons = equation_verdict(is_significant, outcome, sure, structure, checks, options,
+                                     _loose(equation, hypotheses, named, rmse, best if is_significant else 0, target_rms,
+                                            options))
     winner = best if is_significant else 0
     where = starting_where(equation, weak.signals)
 
@@ -164,6 +166,25 @@ def _pinned_rivals(spec: ModelSpec, extended: Equation, equation: Equation, hypo
     return confidence.Pinned(evidence, [pins[k].entry.name for k in keep],
                              [fitted_text(extended, equation, choices[rows], fitted, k, weak.scale) for k in keep],
                              [pins[k].hypothesis for k in keep])
+
+
+def _loose(equation: Equation, hypotheses: list[Hypothesis], named: Naming, rmse: torch.Tensor, reference: int,
+           target_rms: float, options: DiagnoseOptions) -> str | None:
+    """The law held too loosely to be an effect (:attr:`.naming.Naming.loose`) with the least
+    held-out RMSE, where it beats the ``reference`` hypothesis (the best effect, else the re-fitted
+    start) by the null rule's margin: what it is and what it beats; else None."""
+    candidates = named.loose & torch.isfinite(rmse)
+    if not bool(candidates.any()):
+        return None
+    c = int(torch.where(candidates, rmse, torch.full_like(rmse, torch.inf)).argmin())
+    if not bool(confidence.significant(rmse[c], rmse[reference], target_rms, options.relative, options.absolute)):
+        return None
+    beaten = "the re-fitted start" if reference == 0 else f"the best effect whose exponent is held ({named.names[reference]})"
+    d = named.details[c]
+    within = f" ({' and '.join(d['consistent'])} within)" if d["consistent"] else ""
+    return (f"the law {hypotheses[c].label(equation)} predicts the held-out rows better than {beaten}, RMSE "
+            f"{float(rmse[c]):.4g} vs {float(rmse[reference]):.4g}, but holds its exponent only to "
+            f"{d['total_exponent']:.2f} ± {d['half_width']:.2f} on {d['on']}{within}")
 
 
 def _form(hypotheses: list[Hypothesis], c: int) -> set[int]:

@@ -47,6 +47,7 @@ class Naming:
     names: list[str]
     admissible: torch.Tensor
     details: list[dict | None]
+    loose: torch.Tensor | None = None  # (C,) not effects only because their exponent is held too loosely
 
     def catalogue_exponent(self, c: int) -> float | list[float] | None:
         return None if self.details[c] is None else self.details[c]["catalogue_exponent"]
@@ -92,8 +93,9 @@ def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypoth
     roles = catalogue.Roles.of_equation(spec, equation)
     entries = catalogue.entries(spec)
     is_sane = sane(original)[0]
-    names, admissible, details = [], [], []
+    names, admissible, details, loose = [], [], [], []
     for c, h in enumerate(hypotheses):
+        loose.append(False)
         if h.kind == "retuned":
             names.append(Verdict.NO_GAP.text()), admissible.append(True), details.append(None)
             continue
@@ -107,24 +109,30 @@ def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypoth
         half = half_width(boot, c, s, gamma)
         moved = gamma != h.start
         ok = bool(is_sane[c]) and moved and half <= STABLE_HALF_WIDTH
+        loose[c] = bool(is_sane[c]) and moved and STABLE_HALF_WIDTH < half < float("inf")
         same_sign = _same_sign(h, equation, original.theta[0, c], nominal)
-        found = catalogue.consistent(entries, reading, total, half, same_sign) if ok else []
-        entry = catalogue.sole(found)
+        found = catalogue.consistent(entries, reading, total, half, same_sign) if ok or loose[c] else []
+        entry = catalogue.sole(found) if ok else None
         names.append(catalogue.NOT_CATALOGUED if entry is None else entry.name)
         admissible.append(ok)
-        details.append(_details(entry, reading, roles, total, half, ok, [e.name for e in found]))
-    return Naming(names, torch.tensor(admissible, device=original.gamma.device), details)
+        details.append(_details(entry, reading, roles, total, half, ok, [e.name for e in found], loose[c]))
+    device = original.gamma.device
+    return Naming(names, torch.tensor(admissible, device=device), details, torch.tensor(loose, device=device))
 
 
 def _details(entry, reading: catalogue.Reading, roles: catalogue.Roles, total: float, half: float, ok: bool,
-             consistent: list[str]) -> dict:
+             consistent: list[str], loose: bool = False) -> dict:
     """What the report says of one hypothesis's name (see :class:`~.report.EquationGap`);
-    ``consistent``: the entries its interval holds (a name needs exactly one)."""
+    ``consistent``: the entries its interval holds (a name needs exactly one); ``loose``: not an
+    effect only because its exponent is held too loosely."""
     on = reading.signal or "its adjustment"
     measured = f"exponent {total:.2f} ± {half:.2f} on {on}"
     if entry is not None:
         value = catalogue.catalogue_exponent(entry)
         text = f"{entry.name} ({entry.domain}): total {measured}, catalogue {value}"
+    elif loose:
+        within = f"; {' and '.join(consistent)} within" if consistent else ""
+        text = f"power law, {measured} (held too loosely to name{within})"
     elif not ok:
         text = f"power law, {measured}: not an effect (exponent out of range or unstable under the bootstrap)"
     elif len(consistent) > 1:
@@ -140,7 +148,7 @@ def _details(entry, reading: catalogue.Reading, roles: catalogue.Roles, total: f
         text += (f"; {reading.signal} is in {unit}, whose zero is not absolute: temperature laws (radiation, "
                  "T^4) read absolute temperature, so give it in kelvin to test them")
     return {"effect": None if entry is None else entry.name, "text": text, "total_exponent": total,
-            "half_width": half, "on": reading.signal,
+            "half_width": half, "on": reading.signal, "consistent": consistent,
             "catalogue_exponent": None if entry is None else catalogue.catalogue_exponent(entry),
             "domain": None if entry is None else entry.domain,
             "description": None if entry is None else entry.description,
@@ -152,7 +160,7 @@ def _details(entry, reading: catalogue.Reading, roles: catalogue.Roles, total: f
 def _offset_details(roles: catalogue.Roles) -> dict:
     """What the report says of the offset hypothesis (the keys of :func:`_details`)."""
     return {"effect": OFFSET, "text": f"{OFFSET} (any domain): a fitted constant", "total_exponent": None,
-            "half_width": None, "on": None, "catalogue_exponent": None, "domain": "any", "description": OFFSET_DESCRIPTION,
+            "half_width": None, "on": None, "consistent": [], "catalogue_exponent": None, "domain": "any", "description": OFFSET_DESCRIPTION,
             "reference": OFFSET_REFERENCE, "quantities": {"acts_on": None, "term": None, "depends_on": None},
             "assumed_quantities": dict(roles.assumed)}
 

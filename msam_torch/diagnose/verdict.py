@@ -43,11 +43,13 @@ TRY = {"estimation": "try another --half-width or a held-out record from another
                               "stable",
        "length": "a longer held-out record gives the residual checks the independent rows they need",
        "apart": "a record that spans a wider range of the signals the two read, or another excitation, may tell "
-                "them apart"}
+                "them apart",
+       "loose": "a longer or less noisy record, or an excitation that spans a wider range of the signal the law "
+                "reads, holds its exponent closer"}
 
 
 def equation_verdict(significant: bool, effect: str, confidence: dict, structure_left: float,
-                     checks: dict, options: DiagnoseOptions) -> tuple[Verdict, list[str]]:
+                     checks: dict, options: DiagnoseOptions, loose: str | None = None) -> tuple[Verdict, list[str]]:
     """One equation and its reasons; ``effect``: the name of the best effect hypothesis. A
     significant effect (null rule) is explained when it has a catalogue name, predicts
     out-of-sample rows better than every effect hypothesis with another name beyond chance
@@ -58,7 +60,12 @@ def equation_verdict(significant: bool, effect: str, confidence: dict, structure
     one held at its catalogue exponent), the data do not tell which explains the gap: inconclusive,
     naming both; "not explained" is left for a gap that only uncatalogued laws fit best. No
     significant effect is "no significant gap" only when the re-fitted start's residual passes
-    ``checks`` (:func:`~.structure.residual_checks`), else inconclusive."""
+    ``checks`` (:func:`~.structure.residual_checks`), else inconclusive. Either verdict is
+    inconclusive where a law whose exponent is held too loosely to be an effect predicts the
+    held-out rows better by the null rule's margin (``loose``: what it is and what it beats): the
+    data show the gap's law but do not fix it."""
+    if loose is not None:
+        return Verdict.INCONCLUSIVE, [f"{loose}: these data do not fix the law of the gap", TRY["loose"]]
     if not significant:
         return no_gap_verdict(checks)
     named = effect != NOT_CATALOGUED
