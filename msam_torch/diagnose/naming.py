@@ -47,7 +47,7 @@ class Naming:
     names: list[str]
     admissible: torch.Tensor
     details: list[dict | None]
-    loose: torch.Tensor | None = None  # (C,) not effects only because their exponent is held too loosely
+    loose: torch.Tensor  # (C,) not effects only because their exponent is held too loosely
 
     def catalogue_exponent(self, c: int) -> float | list[float] | None:
         return None if self.details[c] is None else self.details[c]["catalogue_exponent"]
@@ -95,12 +95,11 @@ def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypoth
     is_sane = sane(original)[0]
     names, admissible, details, loose = [], [], [], []
     for c, h in enumerate(hypotheses):
-        loose.append(False)
         if h.kind == "retuned":
-            names.append(Verdict.NO_GAP.text()), admissible.append(True), details.append(None)
+            names.append(Verdict.NO_GAP.text()), admissible.append(True), details.append(None), loose.append(False)
             continue
         if h.kind == "offset":
-            names.append(OFFSET), admissible.append(True), details.append(_offset_details(roles))
+            names.append(OFFSET), admissible.append(True), details.append(_offset_details(roles)), loose.append(False)
             continue
         s = slot(equation, h)
         reading = catalogue.read(roles, equation, h.component, h.function)
@@ -109,13 +108,13 @@ def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypoth
         half = half_width(boot, c, s, gamma)
         moved = gamma != h.start
         ok = bool(is_sane[c]) and moved and half <= STABLE_HALF_WIDTH
-        loose[c] = bool(is_sane[c]) and moved and STABLE_HALF_WIDTH < half < float("inf")
+        too_loose = bool(is_sane[c]) and moved and STABLE_HALF_WIDTH < half < float("inf")
         same_sign = _same_sign(h, equation, original.theta[0, c], nominal)
-        found = catalogue.consistent(entries, reading, total, half, same_sign) if ok or loose[c] else []
+        found = catalogue.consistent(entries, reading, total, half, same_sign) if ok or too_loose else []
         entry = catalogue.sole(found) if ok else None
         names.append(catalogue.NOT_CATALOGUED if entry is None else entry.name)
-        admissible.append(ok)
-        details.append(_details(entry, reading, roles, total, half, ok, [e.name for e in found], loose[c]))
+        admissible.append(ok), loose.append(too_loose)
+        details.append(_details(entry, reading, roles, total, half, ok, [e.name for e in found], too_loose))
     device = original.gamma.device
     return Naming(names, torch.tensor(admissible, device=device), details, torch.tensor(loose, device=device))
 
