@@ -462,3 +462,49 @@ def test_a_law_held_too_loosely_that_predicts_better_makes_the_verdict_inconclus
     rmse[2] = 2.07
     named = Naming(named.names, named.admissible, details, torch.tensor([False, False, False]))  # no loose law
     assert _loose(equation, hypotheses, named, rmse, 1, 47.58, options) is None
+
+
+def test_an_exponent_most_trials_could_not_refit_is_neither_an_effect_nor_a_loose_law():
+    """A heated body's exchange law at total exponent 3.5 on T (the loose-law test's equation):
+    trials that re-fitted it spread to +-1.5, a loose law (no effect, radiation within its
+    interval); where five of the eight trials failed to re-fit it, its interval is infinite: the
+    fit itself is not reproduced, so it is no effect and no loose law either (a loose law would
+    make the verdict inconclusive in its name)."""
+    from msam_torch.diagnose.catalogue import NOT_CATALOGUED
+    from msam_torch.diagnose.hypotheses import Hypothesis
+    from msam_torch.diagnose.naming import name_hypotheses
+    model = {"states": ["T"], "inputs": ["Ta"], "parameters": {"h": 0.1},
+             "equations": [{"target": "T_dot", "components": [{"term": "T", "theta": "-h"},
+                                                              {"term": "Ta", "theta": "h", "adjustable": False}],
+                            "adjustments": ["abs(T)"]}],
+             "quantities": {"T": "temperature", "Ta": "temperature"}}
+    spec = ModelSpec.from_config(load_config({"model": model, "data": {"time": "t"}}).model)
+    hypotheses = [Hypothesis("retuned"), Hypothesis("exchange", 0, 0, 1.5, ("Ta",))]
+    gamma = torch.zeros(1, 2, 4, dtype=torch.float64)
+    gamma[0, 1, 1] = 2.5  # the copy's slot: T|T|^2.5, total exponent 3.5 on T
+    theta = torch.zeros(1, 2, 4, dtype=torch.float64)
+    theta[0, :, 0], theta[0, 1, 1] = -0.1, -1e-3  # the copy takes the starting component's sign
+    original = Fitted(gamma, theta, torch.zeros(1, 2, 1, dtype=torch.float64), torch.zeros(1, 2),
+                      torch.zeros(1, 2, dtype=torch.bool))
+
+    def named(failed: int):
+        trials = gamma.repeat(8, 1, 1)
+        trials[:, 1, 1] = 2.5 + torch.tensor([-1.2, -0.8, -0.5, -0.1, 0.1, 0.5, 0.8, 1.2], dtype=torch.float64)
+        invalid = torch.zeros(8, 2, dtype=torch.bool)
+        invalid[:failed, 1] = True
+        fits = Fitted(trials, theta.repeat(8, 1, 1), torch.zeros(8, 2, 1, dtype=torch.float64), torch.zeros(8, 2), invalid)
+        copies = Fitted(gamma.repeat(4, 1, 1), theta.repeat(4, 1, 1), torch.zeros(4, 2, 1, dtype=torch.float64),
+                        torch.zeros(4, 2), torch.zeros(4, 2, dtype=torch.bool))
+        boot = Bootstrap(None, fits, torch.where(invalid, torch.inf, 1.0), copies)
+        return name_hypotheses(spec, spec.equations[0], hypotheses, original, boot, torch.tensor([-0.1, 0.1]))
+
+    loose = named(0)
+    d = loose.details[1]
+    assert 1.0 < d["half_width"] < 2.0 and d["total_exponent"] == pytest.approx(3.5)
+    assert bool(loose.loose[1]) and not bool(loose.admissible[1]) and d["consistent"] == ["radiation"]
+    assert "held too loosely to name; radiation within" in d["text"] and loose.names[1] == NOT_CATALOGUED
+    unfitted = named(5)
+    assert unfitted.details[1]["half_width"] == float("inf")
+    assert not bool(unfitted.loose[1]) and not bool(unfitted.admissible[1]) and unfitted.details[1]["consistent"] == []
+    assert "not an effect" in unfitted.details[1]["text"]
+    assert named(4).details[1]["half_width"] < float("inf")  # half of them re-fitted it: an interval of its own
