@@ -106,9 +106,9 @@ def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypoth
         gamma = float(original.gamma[0, c, s])
         total = gamma + (reading.power or 0.0)
         half = half_width(boot, c, s, gamma)
-        moved = gamma != h.start
-        ok = bool(is_sane[c]) and moved and half <= STABLE_HALF_WIDTH
-        too_loose = bool(is_sane[c]) and moved and STABLE_HALF_WIDTH < half < float("inf")
+        estimated = bool(is_sane[c]) and gamma != h.start  # sane, and a step was accepted
+        ok = estimated and half <= STABLE_HALF_WIDTH
+        too_loose = estimated and STABLE_HALF_WIDTH < half < float("inf")
         same_sign = _same_sign(h, equation, original.theta[0, c], nominal)
         found = catalogue.consistent(entries, reading, total, half, same_sign) if ok or too_loose else []
         entry = catalogue.sole(found) if ok else None
@@ -120,7 +120,7 @@ def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypoth
 
 
 def _details(entry, reading: catalogue.Reading, roles: catalogue.Roles, total: float, half: float, ok: bool,
-             consistent: list[str], loose: bool = False) -> dict:
+             consistent: list[str], loose: bool) -> dict:
     """What the report says of one hypothesis's name (see :class:`~.report.EquationGap`);
     ``consistent``: the entries its interval holds (a name needs exactly one); ``loose``: not an
     effect only because its exponent is held too loosely."""

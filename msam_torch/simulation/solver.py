@@ -50,28 +50,27 @@ def simulate(model: SystemModel, record: Record, p: Parameters, x0: torch.Tensor
     state leaves ``|x| < span`` (or whose rate is not finite, under an adaptive method) is
     diverged and returned as NaN.
     """
-    def guarded(rate, frozen=True):  # ``rate(time, x)`` (a time or a stage index) within the limits (and span)
-        def func(t, x):
+    def guarded(rate, frozen_beyond=None):  # ``rate(time, x)`` (a time or a stage index) within the limits
+        def func(t, x):  # ... and zero for a row beyond ``frozen_beyond`` (S,) or with a rate not finite
             rates = rate(t, x)
             if limits is not None:
                 held = ((x >= limits[1]) & (rates > 0)) | ((x <= limits[0]) & (rates < 0))
                 rates = torch.where(held, 0.0, rates)
-            if span is not None and frozen:
-                alive = (x.abs() < span).all(-1, keepdim=True) & torch.isfinite(rates).all(-1, keepdim=True)
+            if frozen_beyond is not None:
+                alive = (x.abs() < frozen_beyond).all(-1, keepdim=True) & torch.isfinite(rates).all(-1, keepdim=True)
                 rates = torch.where(alive, rates, 0.0)
             return rates
         return func
 
     with _single_thread(x0.numel() < SERIAL_ELEMENTS and x0.device.type == "cpu"):
         if method in TABLEAUS:
-            states = _runge_kutta(model, p, record, x0, TABLEAUS[method], substeps, step,
-                                  lambda rate: guarded(rate, frozen=False))
+            states = _runge_kutta(model, p, record, x0, TABLEAUS[method], substeps, step, guarded)
         else:
             rhs = model.rhs(p, x0.dtype, x0.device)
             values = lambda t, x: model.values(t, x, record.at(t.reshape(1)).squeeze(-2))
             try:
-                states = odeint(guarded(lambda t, x: rhs(values(t, x), x)), x0, record.t, method=method, rtol=rtol,
-                                atol=atol).movedim(0, -2)
+                states = odeint(guarded(lambda t, x: rhs(values(t, x), x), span), x0, record.t, method=method,
+                                rtol=rtol, atol=atol).movedim(0, -2)
             except AssertionError:  # torchdiffeq's step-size underflow: integrate with fixed steps instead
                 return simulate(model, record, p, x0, "rk4", substeps, limits, span, step)
     if span is None:
