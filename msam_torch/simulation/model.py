@@ -127,21 +127,27 @@ class SystemModel:
         eq9 = _Eq9(self, p, dtype, device, kinematic=True)
         return lambda values, x: eq9(self._signals(values, x.shape[:-1], dtype), x.shape[:-1])
 
-    def stage_rates(self, p: Parameters, t: torch.Tensor, external: torch.Tensor):
+    def stage_rates(self, p: Parameters, t: torch.Tensor, external: torch.Tensor, segments: int = 1):
         """``rate(j, x)``: ``d x / dt`` (B, S) at the j-th of the times ``t`` (K,), the external
         signals there being ``external`` (K, E) or (B, K, E). The expressions that read no state
-        are tabulated over all K times at once; a stage evaluates only the others."""
+        are tabulated over all K times at once; a stage evaluates only the others. With
+        ``segments`` > 1 the times are that many consecutive segments run side by side: ``x`` is
+        (B, segments, S) and ``j`` a stage of each segment (K / segments of them)."""
         b, dtype, columns = p.theta.shape[0], t.dtype, self.columns
         eq9 = _Eq9(self, p, dtype, t.device, kinematic=True)
         signals = self.values(t, t.new_zeros(t.shape + (0,)), external)
         one = _constant(torch.ones((), dtype=dtype, device=t.device), p.theta)
+        by_stage = lambda v, axis: (v if segments == 1 else v.unflatten(axis, (segments, -1))).unbind(axis)
         shared = external.dim() == 2  # the same signals for every row: one (K, O + 1) table, read as expanded views
         table = _stack([x(signals) for x in columns.outer] + [one], t.shape if shared else (b, t.shape[0]), dtype)
-        tabulated = [row.expand(b, -1) for row in table.unbind(0)] if shared else table.unbind(1)  # K x (B, O + 1)
+        tabulated = by_stage(table, -2)  # per stage (B, [segments,] O + 1), or without B where shared
+        if shared:
+            tabulated = [row.expand((b,) + row.shape) for row in tabulated]
         if not columns.inner:
             return lambda j, x: eq9(torch.cat([x, tabulated[j]], -1), x.shape[:-1])
         read = sorted(set().union(*(x.names for x in columns.inner)) - set(self.states))
-        at = [dict(zip(read, v)) for v in zip(*(signals[n].unbind(-1) for n in read))] if read else [{}] * t.shape[0]
+        at = [dict(zip(read, v)) for v in zip(*(by_stage(signals[n], -1) for n in read))] if read \
+            else [{}] * len(tabulated)
 
         def rate(j: int, x: torch.Tensor) -> torch.Tensor:
             values = dict(zip(self.states, x.unbind(-1)), **at[j])
