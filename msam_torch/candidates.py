@@ -141,6 +141,7 @@ class Selection:
     fixed_components: torch.Tensor  # (T, 1, N, P)
     project: Optional[Callable[[torch.Tensor], torch.Tensor]] = None  # see EquationData
     _factors: dict = field(default_factory=dict, repr=False, compare=False)
+    _levels: list = field(default_factory=list, repr=False, compare=False)
 
     def perturbation_factor(self, dgamma: float) -> torch.Tensor:
         """``|f|^dgamma - 1`` (cached): column i at ``gamma_i + dgamma`` minus at ``gamma_i`` is
@@ -148,6 +149,18 @@ class Selection:
         if dgamma not in self._factors:
             self._factors[dgamma] = torch.expm1(dgamma * self.log_f)
         return self._factors[dgamma]
+
+    def levels(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(cached) ``varying`` (C, Q): the columns whose ``log|f|`` changes along the samples in
+        some trial; ``level`` (T, C, Q): ``log|f|`` at the first sample; ``base`` (T, C, M, Q): the
+        components projected. A column whose ``|f|`` is constant (``1``, ``0``, a fixed level) is
+        ``M_i |f|^gamma = |f|^gamma M_i``, and the projection is linear, so its projected column is
+        ``|f|^gamma`` times its projected component: one projection for every step."""
+        if not self._levels:
+            level = self.log_f[..., 0, :]
+            varying = (self.log_f != level.unsqueeze(-2)).any(-2).any(0)
+            self._levels.extend((varying, level, self.project(self.signed_components)))
+        return tuple(self._levels)
 
     def take(self, trials: torch.Tensor, candidates: torch.Tensor) -> "Selection":
         """Candidate ``candidates[k]`` of trial ``trials[k]`` for each k, as K trials of one
@@ -169,10 +182,22 @@ def columns(selection: Selection, gamma: torch.Tensor) -> torch.Tensor:
     """Adjusted components ``M_i f_i^gamma_i`` (Eq. 9) for gamma of shape (..., T, C, Q),
     mapped by ``selection.project`` when one is set.
 
-    The same values as ``signed_components * power(log_f, gamma)``, computed in one buffer."""
+    The same values as ``signed_components * power(log_f, gamma)``, computed in one buffer; a
+    projected selection evaluates and projects only its varying columns (:meth:`Selection.levels`)."""
+    if selection.project is not None:
+        return _projected_columns(selection, gamma)
     value = (gamma.unsqueeze(-1) * selection.log_f.mT).mT  # broadcast along the stored sample axis
-    cols = value.clamp_(max=MAX_LOG).exp_().mul_(selection.signed_components)
-    return cols if selection.project is None else selection.project(cols)
+    return value.clamp_(max=MAX_LOG).exp_().mul_(selection.signed_components)
+
+
+def _projected_columns(selection: Selection, gamma: torch.Tensor) -> torch.Tensor:
+    varying, level, base = selection.levels()
+    cols = base * power(level, gamma).unsqueeze(-2)  # (..., T, C, M, Q)
+    c, q = varying.nonzero(as_tuple=True)
+    if c.numel():  # (..., T, K, N) of the K varying columns, projected as (..., T, 1, N, K)
+        value = power(selection.log_f.mT[:, c, q], gamma[..., c, q].unsqueeze(-1)) * selection.signed_components.mT[:, c, q]
+        cols.mT[..., c, q, :] = selection.project(value.mT.unsqueeze(-3)).squeeze(-3).mT
+    return cols
 
 
 def predict(selection: Selection, cols: torch.Tensor, theta: torch.Tensor, theta_fixed: torch.Tensor) -> torch.Tensor:

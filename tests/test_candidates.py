@@ -33,3 +33,31 @@ def test_signed_adjustment_keeps_the_sign_and_zero_is_guarded():
     cols = module.columns(data)[0]
     assert torch.allclose(cols[:, 0], data.components[0, :, 0] * x3, rtol=1e-12)
     assert torch.isfinite(cols).all()  # negative exponent of a function that crosses zero
+
+
+def test_projected_columns_project_only_the_varying_ones_with_the_same_values():
+    """A projected selection (weak form) evaluates and projects only the columns whose |f| varies
+    along the samples; the others are their projected component times |f|^gamma. Same values as
+    projecting every column, with and without row weights, for gamma with an extra leading axis."""
+    from msam_torch.candidates import Selection, power
+    from msam_torch.weak import Projection, TestFunctions
+
+    torch.manual_seed(0)
+    t, c, n, q = 3, 5, 400, 4
+    tests = TestFunctions.build(torch.arange(n, dtype=torch.float64) * 0.01, 6)
+    log_f = torch.randn(t, c, q, n, dtype=torch.float64)
+    log_f[:, :, 1] = 0.0  # the function 1
+    log_f[:, 2, 3] = -27.6  # a constant level (the floor: the function 0)
+    log_f = log_f.mT  # (T, C, N, Q), stored sample-axis last as Selection keeps it
+    signed = torch.randn(t, c, q, n, dtype=torch.float64).mT
+    for root in (None, torch.rand(t, tests.count(n), dtype=torch.float64)):
+        projection = Projection(tests, root)
+        selection = Selection(torch.zeros(t, 1, n, dtype=torch.float64), signed, log_f,
+                              torch.zeros(t, 1, n, 0, dtype=torch.float64), projection)
+        varying = selection.levels()[0]
+        assert int(varying.sum()) == c * q - c - 1 and not bool(varying[:, 1].any()) and not bool(varying[2, 3])
+        for gamma in (torch.randn(t, c, q, dtype=torch.float64), torch.randn(2, t, c, q, dtype=torch.float64)):
+            whole = projection(signed * power(log_f, gamma.unsqueeze(-2)))
+            got = columns(selection, gamma)
+            assert got.shape == whole.shape
+            assert torch.allclose(got, whole, rtol=1e-12, atol=1e-14 * float(whole.abs().max()))

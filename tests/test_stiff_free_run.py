@@ -70,3 +70,42 @@ def test_the_exact_model_of_a_stiff_motor_simulates_within_its_stability_interva
         assert run["diverged"] == [] and run["solver"]["converged"], (label, run)
         assert run["solver"]["step"] <= STABLE_SHARE * STABILITY["rk4"] / (2 * decay) * (1 + 1e-9), run["solver"]
         assert run["nrmse"]["start"] < 0.01, run["nrmse"]
+
+
+def test_a_step_the_check_accepts_at_once_is_doubled_while_it_agrees(monkeypatch):
+    """The band's rule only sets where the step search starts: started at an eighth of the sample
+    period on a slow oscillator (2 Hz resonance sampled at 100 Hz), the step is doubled while the
+    runs at it and at twice it agree, up to half the sample period (twice that is the longest
+    check run that meets every sample), and the exact model's free runs stay on the record."""
+    import msam_torch.diagnose.compare as compare
+
+    dt = 0.01
+    t = np.arange(4000) * dt
+    rng = np.random.default_rng(3)
+    wave = sum(np.sin(2 * np.pi * f * t + p) for f, p in zip(np.linspace(0.2, 6.0, 8), rng.uniform(0, 2 * np.pi, 8)))
+    force = lambda s: np.interp(s, t, wave / np.abs(wave).max())
+    a = np.array([[0.0, 1.0], [-(2 * np.pi * 2.0) ** 2, -1.0]])
+    x = solve_ivp(lambda s, x: a @ x + np.array([0.0, 50.0]) * force(s), (t[0], t[-1]), [0.0, 0.0], t_eval=t,
+                  method="LSODA", rtol=1e-10, atol=1e-12).y
+    record = lambda part: pd.DataFrame({"t": t[part], "x": x[0][part], "x_dot": x[1][part], "F": force(t[part])})
+    model = {"states": ["x", "x_dot"], "inputs": ["F"], "parameters": {"k": float(-a[1, 0]), "d": 1.0, "b": 50.0},
+             "equations": [{"target": "x_ddot", "components": [{"term": "x_dot", "theta": "-d"}, {"term": "x", "theta": "-k"},
+                                                              {"term": "F", "theta": "b"}],
+                            "adjustments": ["abs(x)", "abs(x_dot)"]}]}
+    started = []
+    first_step = compare._first_step
+
+    def at_an_eighth(*args, **kwargs):
+        step, stiff, widest = first_step(*args, **kwargs)
+        started.append(step)
+        return dt / 8, stiff, widest
+
+    monkeypatch.setattr(compare, "_first_step", at_an_eighth)
+    config = {"model": model, "data": {"time": "t", "columns": {k: k for k in ("x", "x_dot", "F")}}}
+    report = diagnose(config, data=record(slice(0, 2000)), validation=record(slice(2000, 4000)),
+                      options=DiagnoseOptions(bootstrap=0))
+    assert started, "the free runs' step search did not run"
+    for label, run in report.measures["free_run"].items():
+        assert run["solver"]["converged"] and run["diverged"] == [], (label, run["solver"])
+        assert abs(run["solver"]["step"] - dt / 2) < 1e-12, (label, run["solver"])
+        assert run["nrmse"]["start"] < 0.01, (label, run["nrmse"])

@@ -117,7 +117,8 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
     :func:`_first_step` (a share of the band's period within the models' stability interval) and halves it
     until the three point models' runs at the step and at twice it agree (:func:`converged`) over
     the first :data:`CHECK_STEPS` steps, at most :data:`HALVINGS` times (each set's ``solver``
-    entry says whether they agreed, and ``unconverged`` which did not): the step follows the
+    entry says whether they agreed, and ``unconverged`` which did not); a step they agree at at
+    once is doubled while they agree at the doubled step (:func:`_doubles`): the step follows the
     dynamics, not the record's length or sampling, so the cost grows linearly with the record. An
     adaptive solver keeps its tolerances, ``atol`` relative to each state's measured magnitude."""
     grids = {label: d.signals["t"] for label, d in sets.items()}
@@ -136,7 +137,7 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
                                  for label, n in zip(group, sizes)]) for x in spec.states}
         stiff = False
         if auto:
-            step, stiff = _first_step(spec, {label: sets[label] for label in group}, batches, starts, options.solver,
+            step, stiff, widest = _first_step(spec, {label: sets[label] for label in group}, batches, starts, options.solver,
                                       band, t, bool(held.get(group[0])))
         seen = lambda u: anti_aliased(u, dt, 2 * step if auto else step) if fixed else u
         inputs = {u: torch.cat([seen(sets[label].signals[u]).expand(n, -1) for label, n in zip(group, sizes)])
@@ -150,22 +151,32 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
             {x: v if keep is None else v[keep] for x, v in initial.items()}, method=options.solver, step=step,
             rtol=options.rtol, atol=atol, scale=scale, held=held.get(group[0], ()))
         if auto:  # the run at twice the step agrees, or the step is halved
-            n = max(2, int((t <= t[0] + CHECK_STEPS * step).sum()))
             points = torch.cat([torch.arange(o, o + 3) for o in torch.tensor([0] + sizes[:-1]).cumsum(0).tolist()])
-            check = lambda step: run([_pick(m, points) for m in batch], step, n, points)
-            whole = n == t.shape[0]  # the check spans the record: its fine runs are the free runs
-            fine = lambda step: run(batch, step, n) if whole else check(step)
-            at_points = lambda runs: {x: v[points] for x, v in runs.items()} if whole else runs
-            reference = {x: torch.cat([views[label][x][:n].expand(3, -1) for label in group]) for x in spec.states}
             spread = {x: torch.cat([views[label][x].std().expand(3, 1) for label in group]) for x in spec.states}
-            coarse, runs = check(2 * step), fine(step)
+            spanned = lambda step: max(2, int((t <= t[0] + CHECK_STEPS * step).sum()))
+            check = lambda step, n: run([_pick(m, points) for m in batch], step, n, points)
+
+            def agreement(coarse, fine, n):
+                reference = {x: torch.cat([views[label][x][:n].expand(3, -1) for label in group]) for x in spec.states}
+                return converged(coarse, fine, scale, _off(fine, reference, spread))
+
+            n = spanned(step)
+            whole = n == t.shape[0]  # the check spans the record: its fine runs are the free runs
+            fine = lambda step: run(batch, step, n) if whole else check(step, n)
+            at_points = lambda runs: {x: v[points] for x, v in runs.items()} if whole else runs
+            coarse, runs = check(2 * step, n), fine(step)
             for halving in range(HALVINGS + 1):
-                agree = converged(coarse, at_points(runs), scale, _off(at_points(runs), reference, spread))
+                agree = agreement(coarse, at_points(runs), n)
                 if bool(agree.all()) or halving == HALVINGS:
                     break
                 coarse, step = at_points(runs), step / 2
                 runs = fine(step)
             trajectory = runs if whole else None
+            while not whole and halving == 0 and _doubles(step, dt, widest):  # agreed at once: the step is
+                n = spanned(2 * step)  # doubled while the runs at it and at twice it agree
+                if not bool(agreement(check(4 * step, n), check(2 * step, n), n).all()):
+                    break
+                step = 2 * step
         if trajectory is None:
             trajectory = run(batch, step, t.shape[0])
         for k, label in enumerate(group):
@@ -179,8 +190,17 @@ def _simulate_sets(spec: ModelSpec, sets: dict, batches: dict, options: Diagnose
     return result, steps
 
 
+def _doubles(step: float, dt: float, widest: float) -> bool:
+    """Whether a checked fixed ``step`` may be tried at twice its length: within ``widest`` (the
+    record's share and the stability bound of :func:`_first_step`), and four times it divides the
+    sample period ``dt``: the check's run at twice the doubled step meets every sample (a held
+    input's switches) at a step's end and reads the input unfiltered (:func:`anti_aliased`)."""
+    ratio = dt / (4 * step)
+    return 2 * step <= widest * (1 + 1e-9) and ratio >= 1 - 1e-9 and abs(ratio - round(ratio)) < 1e-6
+
+
 def _first_step(spec: ModelSpec, sets: dict, batches: dict, starts: dict, method: str, band: float,
-                t: torch.Tensor, held: bool = False) -> tuple[float, bool]:
+                t: torch.Tensor, held: bool = False) -> tuple[float, bool, float]:
     """A fixed step's start: :data:`PER_PERIOD` of the band's period, at most 1/:data:`STEPS` of the
     record and half :data:`STABLE_SHARE` of the step the fastest decaying mode of the three point
     models allows (:func:`~msam_torch.simulation.equations.fastest_decay` along the records: the
@@ -189,17 +209,19 @@ def _first_step(spec: ModelSpec, sets: dict, batches: dict, starts: dict, method
     fixed step: the second value); below the sample period, its nearest divisor, so that a held
     input switches between steps. Where the records hold an input (``held``), at most half the
     sample period and an even divisor of it: the check's run at twice the step, too, meets every
-    switch at a step's end."""
+    switch at a step's end. The third value is the widest step the check may double it to
+    (:func:`_doubles`): the bounds but the band's."""
     dt = float(t[1] - t[0])
     decay = max(float(fastest_decay(spec, [_first(m, 3) for m in batches[label]],
                                     _points(spec, sets[label], starts.get(label))).max()) for label in sets)
     stable = STABLE_SHARE * STABILITY[method] / (2 * decay) if decay > 0 else math.inf  # the check's run at 2 h too
-    step = min(float(t[-1] - t[0]) / STEPS, PER_PERIOD / band, stable)
+    widest = min(float(t[-1] - t[0]) / STEPS, stable)
+    step = min(widest, PER_PERIOD / band)
     stiff = step < dt / STIFF_SUBSTEPS
     step = max(step, dt / STIFF_SUBSTEPS)
     if held:
-        return dt / (2 * math.ceil(dt / (2 * step))), stiff
-    return (dt / round(dt / step) if step < dt else step), stiff
+        return dt / (2 * math.ceil(dt / (2 * step))), stiff, widest
+    return (dt / round(dt / step) if step < dt else step), stiff, widest
 
 
 def _points(spec: ModelSpec, dataset, start: dict | None) -> dict:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 import torch
+from scipy.spatial import cKDTree
 from scipy.stats import chi2, norm
 from statsmodels.stats.diagnostic import acorr_ljungbox
 
@@ -39,9 +40,10 @@ def _explained(equation: Equation, weak: WeakForm, choices: torch.Tensor, origin
     _, x_val = _features(equation, weak.val_signals, weak.val_tests)
     x_fit, x_val = x_fit[weak.fit_rows], x_val[weak.val_rows]
     spread = x_fit.std(0).clamp_min(torch.finfo(x_fit.dtype).tiny)
-    distance = torch.cdist(x_val / spread, x_fit / spread)
     k = min(NEIGHBOURS, x_fit.shape[0])
-    neighbours = distance.topk(k, largest=False).indices
+    tree = cKDTree((x_fit / spread).cpu().numpy())  # n log n, not the n_val x n_fit distance matrix
+    _, found = tree.query((x_val / spread).cpu().numpy(), k=list(range(1, k + 1)))
+    neighbours = torch.as_tensor(found, device=x_fit.device)
     fit_pred = predict_rows(weak.data, choices, original)[0]  # rows of the weighted fit: weights are 0/1
     val_pred = predict_rows(weak.val_data, choices, original)[0]
     explained = []
