@@ -180,6 +180,24 @@ def test_localise_finds_where_a_clearance_spring_engages():
     assert residual[x.abs() < 0.6].abs().max() < 0.3  # the starting structure holds inside the clearance
 
 
+def test_the_regimes_residuals_are_those_of_separate_weighted_fits():
+    """The batched residual sums of squares of localise (normal equations of every rule from one
+    product, residuals from the solutions) are those of each rule's own weighted least-squares fit."""
+    from msam_torch.diagnose.localise import _sse
+
+    generator = torch.Generator().manual_seed(1)
+    design = torch.randn(800, 4, generator=generator, dtype=torch.float64)
+    y = design @ torch.tensor([1.0, -2.0, 0.5, 3.0], dtype=torch.float64) + torch.randn(800, generator=generator,
+                                                                                    dtype=torch.float64)
+    weights = (torch.rand(5, 800, generator=generator, dtype=torch.float64) > 0.4).to(torch.float64)
+    expected = []
+    for w in weights:
+        rows = w.bool()
+        x = torch.linalg.lstsq(design[rows], y[rows].unsqueeze(-1)).solution.squeeze(-1)
+        expected.append(float(((y[rows] - design[rows] @ x) ** 2).sum()))
+    assert _sse(design, y, weights).tolist() == pytest.approx(expected, rel=1e-10)
+
+
 def test_a_diverged_adapted_run_closes_none_of_the_re_fitted_models_error():
     """The effect's share of the theta re-fitted model's free-run error: 80 % where the adapted run
     is five times closer, 0 (not negative) where it diverged."""

@@ -20,7 +20,7 @@ import torch
 
 from ..candidates import EquationData
 from ..spec import Equation
-from ..step import lstsq
+from ..step import lstsq, solve_normal
 
 MIN_EXPLAINED = 0.2
 MIN_SHARE = 0.1  # each regime holds at least this share of the rows
@@ -46,10 +46,13 @@ class Region:
 
 
 def _sse(design: torch.Tensor, y: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-    """Weighted least-squares residual sum of squares for every row of ``weights`` (R, M) -> (R,)."""
-    root = weights.sqrt()
-    x = lstsq(design * root.unsqueeze(-1), y * root)
-    return (weights * (y - (design @ x.unsqueeze(-1)).squeeze(-1)) ** 2).sum(-1)
+    """Weighted least-squares residual sum of squares of the ``design`` (M, K) for every row of
+    ``weights`` (R, M) -> (R,): the normal equations of all rows from one product of the weights
+    with the rows' outer products, the residuals from the solutions (not from the normal equations)."""
+    k = design.shape[-1]
+    outer = (design.unsqueeze(-1) * design.unsqueeze(-2)).flatten(-2)  # (M, K * K)
+    x = solve_normal((weights @ outer).unflatten(-1, (k, k)), weights @ (design * y.unsqueeze(-1)))
+    return (weights * (y - x @ design.mT) ** 2).sum(-1)
 
 
 def _candidates(values: dict[str, torch.Tensor], quantiles: int, dtype) -> list[Region]:
@@ -78,9 +81,11 @@ def localise(design: torch.Tensor, y: torch.Tensor, values: dict[str, torch.Tens
     if not rules:
         return [], torch.zeros_like(y, dtype=torch.bool), y - design @ lstsq(design, y), 0.0
     inside = torch.stack([r.mask(values[r.signal]) for r in rules]).to(y.dtype)  # (R, M)
-    extra = torch.stack([torch.stack([torch.ones_like(y), torch.sign(values[r.signal])], -1) for r in rules])
-    augmented = torch.cat([design.expand(len(rules), -1, -1), extra], -1)  # (R, M, K + 2)
-    explained = 1 - (_sse(augmented, y, inside) + _sse(augmented, y, 1 - inside)) / total
+    explained = torch.empty(len(rules), dtype=y.dtype, device=y.device)
+    for signal in dict.fromkeys(r.signal for r in rules):  # the rules of one signal share their design
+        of = torch.tensor([r.signal == signal for r in rules], device=y.device)
+        augmented = torch.cat([design, torch.ones_like(y).unsqueeze(-1), torch.sign(values[signal]).unsqueeze(-1)], -1)
+        explained[of] = 1 - (_sse(augmented, y, inside[of]) + _sse(augmented, y, 1 - inside[of])) / total
     rows_in = inside.sum(-1)
     if orient == "global":
         squared = (y - design @ lstsq(design, y)) ** 2
