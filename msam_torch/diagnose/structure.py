@@ -39,10 +39,12 @@ def _explained(equation: Equation, weak: WeakForm, choices: torch.Tensor, origin
     _, x_fit = _features(equation, weak.signals, weak.tests)
     _, x_val = _features(equation, weak.val_signals, weak.val_tests)
     x_fit, x_val = x_fit[weak.fit_rows], x_val[weak.val_rows]
-    spread = x_fit.std(0).clamp_min(torch.finfo(x_fit.dtype).tiny)
+    spread = x_fit.std(0)
+    varies = spread > 0  # a signal constant over the fitted rows (a held input) tells no rows apart
+    scaled = lambda x: (x[:, varies] / spread[varies] if bool(varies.any()) else torch.zeros_like(x[:, :1])).cpu().numpy()
     k = min(NEIGHBOURS, x_fit.shape[0])
-    tree = cKDTree((x_fit / spread).cpu().numpy())  # n log n, not the n_val x n_fit distance matrix
-    _, found = tree.query((x_val / spread).cpu().numpy(), k=list(range(1, k + 1)))
+    tree = cKDTree(scaled(x_fit))  # n log n, not the n_val x n_fit distance matrix
+    _, found = tree.query(scaled(x_val), k=list(range(1, k + 1)))
     neighbours = torch.as_tensor(found, device=x_fit.device)
     fit_pred = predict_rows(weak.data, choices, original)[0]  # rows of the weighted fit: weights are 0/1
     val_pred = predict_rows(weak.val_data, choices, original)[0]
