@@ -150,15 +150,15 @@ class Selection:
             self._factors[dgamma] = torch.expm1(dgamma * self.log_f)
         return self._factors[dgamma]
 
-    def levels(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(cached) ``varying`` (C, Q): the columns whose ``log|f|`` changes along the samples in
-        some trial; ``level`` (T, C, Q): ``log|f|`` at the first sample; ``base`` (T, C, M, Q): the
+    def levels(self) -> tuple[tuple[torch.Tensor, torch.Tensor], torch.Tensor, torch.Tensor]:
+        """(cached) ``varying`` (candidate and column indices): the columns whose ``log|f|`` changes
+        along the samples in some trial; ``level`` (T, C, Q): ``log|f|`` at the first sample; ``base`` (T, C, M, Q): the
         components projected. A column whose ``|f|`` is constant (``1``, ``0``, a fixed level) is
         ``M_i |f|^gamma = |f|^gamma M_i``, and the projection is linear, so its projected column is
         ``|f|^gamma`` times its projected component: one projection for every step."""
         if not self._levels:
             level = self.log_f[..., 0, :]
-            varying = (self.log_f != level.unsqueeze(-2)).any(-2).any(0)
+            varying = (self.log_f != level.unsqueeze(-2)).any(-2).any(0).nonzero(as_tuple=True)
             self._levels.extend((varying, level, self.project(self.signed_components)))
         return tuple(self._levels)
 
@@ -191,9 +191,8 @@ def columns(selection: Selection, gamma: torch.Tensor) -> torch.Tensor:
 
 
 def _projected_columns(selection: Selection, gamma: torch.Tensor) -> torch.Tensor:
-    varying, level, base = selection.levels()
+    (c, q), level, base = selection.levels()
     cols = base * power(level, gamma).unsqueeze(-2)  # (..., T, C, M, Q)
-    c, q = varying.nonzero(as_tuple=True)
     if c.numel():  # (..., T, K, N) of the K varying columns, projected as (..., T, 1, N, K)
         value = power(selection.log_f.mT[:, c, q], gamma[..., c, q].unsqueeze(-1)) * selection.signed_components.mT[:, c, q]
         cols.mT[..., c, q, :] = selection.project(value.mT.unsqueeze(-3)).squeeze(-3).mT

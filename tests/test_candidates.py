@@ -54,7 +54,8 @@ def test_projected_columns_project_only_the_varying_ones_with_the_same_values():
         projection = Projection(tests, root)
         selection = Selection(torch.zeros(t, 1, n, dtype=torch.float64), signed, log_f,
                               torch.zeros(t, 1, n, 0, dtype=torch.float64), projection)
-        varying = selection.levels()[0]
+        varying = torch.zeros(c, q, dtype=torch.bool)
+        varying[selection.levels()[0]] = True
         assert int(varying.sum()) == c * q - c - 1 and not bool(varying[:, 1].any()) and not bool(varying[2, 3])
         for gamma in (torch.randn(t, c, q, dtype=torch.float64), torch.randn(2, t, c, q, dtype=torch.float64)):
             whole = projection(signed * power(log_f, gamma.unsqueeze(-2)))
