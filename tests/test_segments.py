@@ -1,12 +1,11 @@
 """Long fixed-step runs integrated in segments side by side (:func:`msam_torch.simulation.solver.segments`):
 the same trajectories as the sequential loop, in few passes where the model forgets its start,
 in one pass per segment where it never does, diverged members marked as before, and never where
-the run is differentiated."""
+autograd differentiates the run."""
 import math
 
 import pytest
 import torch
-import torch.autograd.forward_ad as forward_ad
 
 from msam_torch.config import load_config
 from msam_torch.simulation import EquationModel, simulate_equations
@@ -70,8 +69,7 @@ def test_a_diverging_member_is_marked_diverged_as_in_the_sequential_run(monkeypa
     _close(segmented, sequential, 1e-7)
 
 
-@pytest.mark.parametrize("how", ["autograd", "forward"])
-def test_a_differentiated_run_is_not_segmented(how):
+def test_a_run_differentiated_by_autograd_is_not_segmented():
     spec = ModelSpec.from_config(load_config({"model": MODEL}).model)
     model = EquationModel.starting(spec.equations[0], torch.tensor([[-1.0, -4.0, 1.0]], dtype=torch.float64))
     _, p, _ = _system(spec, [model])
@@ -79,10 +77,6 @@ def test_a_differentiated_run_is_not_segmented(how):
     record = solver.Record(t, torch.zeros(N, 1, dtype=torch.float64), t.new_zeros(0, N), t.new_zeros(2))
     x0, steps = torch.zeros(1, 2, dtype=torch.float64), 6 * solver.SEGMENT_STEPS
     assert solver.segments(steps, x0, p, record) == 6
-    if how == "autograd":
-        assert solver.segments(steps, x0.requires_grad_(), p, record) == 1
-        with torch.no_grad():  # a parameter that is not differentiated here
-            assert solver.segments(steps, x0, p, record) == 6
-    else:
-        with forward_ad.dual_level():
-            assert solver.segments(steps, forward_ad.make_dual(x0, torch.ones_like(x0)), p, record) == 1
+    assert solver.segments(steps, x0.requires_grad_(), p, record) == 1
+    with torch.no_grad():  # a parameter that is not differentiated here
+        assert solver.segments(steps, x0, p, record) == 6

@@ -1,27 +1,27 @@
 """The one ``simulate()``: a model of Eq. 9 integrated over a record.
 
-Fixed-step methods (``euler``, ``midpoint``, ``rk4``: torchdiffeq's tableaus, ``rk4`` its 3/8
-rule) run as an explicit Runge-Kutta loop whose step coefficients are tensors derived from the
-record's time axis; the external signals are interpolated once at all stage times (sixths of a
-step), and every expression of the model that reads no simulated state is tabulated there once
-(:meth:`~.model.SystemModel.stage_rates`), so a stage evaluates only what depends on the states.
-Forward-mode differentiation (:mod:`.sensitivities`) passes through with every operation between
-dual tensors: torchdiffeq's fixed-grid steps multiply by Python numbers, an operation forward mode
-runs on a slow path (about 0.7 ms against 10 us between dual tensors), which made differentiating
-through torchdiffeq's ``rk4`` 15 to 30 times the cost of the simulation. Adaptive methods
-(``dopri5``, ...) are torchdiffeq's, and fall back to ``rk4`` when their step underflows. Small
-batches run on one CPU thread. A trajectory that leaves ``span`` is returned as NaN, so one
-diverging member neither crashes nor stalls the batch: an adaptive method freezes it where it
-leaves (its step would otherwise shrink for every member); the fixed-step loop, whose members
-never share a step, lets it run on and marks it once at the end (a check per stage cost about a
-fifth of the loop). A long fixed-step run that is not differentiated is cut into segments
-integrated side by side, each restarted from the end of the one before until they join
-(:func:`segments`): the loop's cost is its per-stage overhead, nearly the same for one row as for
-hundreds.
+Fixed-step methods (``euler``, ``midpoint``, ``rk4``: torchdiffeq's tableaus, ``rk4`` its 3/8 rule)
+run as an explicit Runge-Kutta loop whose step coefficients are tensors derived from the record's
+time axis; the external signals are interpolated once at all stage times (sixths of a step), and
+every expression of the model that reads no simulated state is tabulated there once
+(:meth:`~.model.SystemModel.stage_rates`), so a stage evaluates only what depends on the states. In
+forward mode (:mod:`.sensitivities`) the loop runs plain, once per distinct row, and the tangents
+follow by the chain rule of the steps (:func:`_tangents`): a dual tensor carried through the loop
+cost 3 to 5 times a plain one per operation, and torchdiffeq's fixed-grid steps, which multiply by
+Python numbers, far more (about 0.7 ms per operation). Adaptive methods (``dopri5``, ...) are
+torchdiffeq's, and fall back to ``rk4`` when their step underflows. Small batches run on one CPU
+thread. A trajectory that leaves ``span`` is returned as NaN, so one diverging member neither
+crashes nor stalls the batch: an adaptive method freezes it where it leaves (its step would
+otherwise shrink for every member); the fixed-step loop, whose members never share a step, lets it
+run on and marks it once at the end (a check per stage cost about a fifth of the loop). A long
+fixed-step run that autograd does not differentiate is cut into segments integrated side by side,
+each restarted from the end of the one before until they join (:func:`segments`): the loop's cost is
+its per-stage overhead, nearly the same for one row as for hundreds.
 """
 from __future__ import annotations
 
 from contextlib import contextmanager
+from dataclasses import fields, replace
 
 import torch
 import torch.autograd.forward_ad as forward_ad
@@ -43,6 +43,7 @@ SERIAL_ELEMENTS = 32768  # batches of fewer state values are simulated on one th
 READ_BEFORE = 1e-6  # a step's last stage reads the external signals this share of a step before it
 SEGMENT_STEPS = 500  # a fixed-step run is cut into segments of at least this many steps ...
 SEGMENTS = 64  # ... and at most this many (see :func:`segments`)
+TANGENT_ELEMENTS = 1 << 20  # state values per chunk of the tangents' one-step passes (:func:`_tangents`)
 
 
 def simulate(model: SystemModel, record: Record, p: Parameters, x0: torch.Tensor, method: str = "rk4",
@@ -92,23 +93,49 @@ def _runge_kutta(model: SystemModel, p: Parameters, record: Record, x0: torch.Te
     that miss them): (B, N, S). The external signals are interpolated at all stage times at once;
     a stage costs the model's per-stage operations. A stage at the end of a step reads the external
     signals just before it (their left limit): a held input that switches there is not read by
-    the step it ends. A long run that is not differentiated runs in :func:`segments`."""
-    offsets, stages, weights = tableau
+    the step it ends. A long run that is not differentiated runs in :func:`segments`; a run in
+    forward mode is the plain run with its tangents from :func:`_tangents`."""
     t = record.t
     h = (t[1] - t[0]) / substeps if step is None else torch.as_tensor(step, dtype=t.dtype, device=t.device)
     steps = int(torch.ceil((t[-1] - t[0]) / h - 1e-9))
-    parts = segments(steps, x0, p, record)
-    length = -(-steps // parts)  # steps per segment; the last one's beyond the record read its end
+    tensors = (x0, p.gamma, p.theta, p.theta_fixed, p.scale, record.t, record.external)
+    if any(_tangent(v) is not None for v in tensors):
+        plain = lambda v: None if v is None else forward_ad.unpack_dual(v).primal
+        plain_p = Parameters(*(plain(getattr(p, f.name)) for f in fields(p)))
+        plain_record = replace(record, t=plain(t), external=plain(record.external), pieces=plain(record.pieces))
+        first, inverse = _distinct(plain_p, plain(x0), plain_record)
+        u_p, u_record, u_x0 = _rows(plain_p, first), _rows(plain_record, first), plain(x0)[first]
+        grid = _grid(model, u_p, u_record, u_x0, tableau, plain(h), steps, guarded, span,
+                     segments(steps, u_x0, u_p, u_record))  # (U, steps + 1, S), one per distinct row
+        grid = forward_ad.make_dual(grid[inverse], _tangents(model, p, record, x0, tableau, h, grid, first, inverse, guarded))
+    else:
+        grid = _grid(model, p, record, x0, tableau, h, steps, guarded, span, segments(steps, x0, p, record))
+    position = ((t - t[0]) / h).detach()
+    nearest = position.round()
+    if bool(((position - nearest).abs() < 1e-6).all()):
+        return grid[..., nearest.long().clamp(max=steps), :]
+    k = position.floor().long().clamp(max=steps - 1)
+    w = (position - k).unsqueeze(-1)
+    return grid[..., k, :] * (1 - w) + grid[..., k + 1, :] * w
+
+
+def _stepper(model: SystemModel, p: Parameters, record: Record, tableau, h, first: int, steps: int, parts: int,
+             guarded):
+    """``run(x, length)``: ``length`` steps of the tableau from x (..., [parts,] S), the grid
+    (..., [parts,] length + 1, S); the steps are ``first`` to ``first + steps`` of the run, cut into
+    ``parts`` consecutive segments side by side (``length`` = steps / parts)."""
+    offsets, stages, weights = tableau
+    t = record.t
     offset = torch.tensor(offsets, device=t.device)
-    keys = (6 * torch.arange(parts * length, device=t.device).unsqueeze(-1) + offset).flatten()  # in the loop's order
+    keys = (6 * torch.arange(first, first + steps, device=t.device).unsqueeze(-1) + offset).flatten()  # in the loop's order
     stage_times = t[0] + keys.to(t.dtype) * (h / 6)
-    ends = (offset == 6).repeat(parts * length)  # a step's last stage reads its own input
+    ends = (offset == 6).repeat(steps)  # a step's last stage reads its own input
     read_at = torch.where(ends, stage_times - h * READ_BEFORE, stage_times).clamp(max=t[-1])
     func = guarded(model.stage_rates(p, stage_times, record.at(read_at), parts))
     coefficients = [[h * a for a in row] for row in stages]
     weights = [(h * b, b) for b in weights]
 
-    def run(x):  # ``length`` steps from x: (..., length + 1, S)
+    def run(x, length):
         grid, j = [x], 0
         for _ in range(length):
             k = []
@@ -124,25 +151,111 @@ def _runge_kutta(model: SystemModel, p: Parameters, record: Record, x0: torch.Te
             grid.append(x)
         return torch.stack(grid, -2)
 
+    return run
+
+
+def _grid(model: SystemModel, p: Parameters, record: Record, x0: torch.Tensor, tableau, h, steps: int, guarded,
+          span: torch.Tensor | None, parts: int) -> torch.Tensor:
+    """The states on the step grid (B, steps + 1, S), in ``parts`` segments side by side."""
+    length = -(-steps // parts)  # steps per segment; the last one's beyond the record read its end
+    run = _stepper(model, p, record, tableau, h, 0, parts * length, parts, guarded)
     if parts == 1:
-        grid = run(x0)  # (B, steps + 1, S)
-    else:  # every segment from the end of the one before it, until they join (Parareal without its coarse solver)
-        first = x0.unsqueeze(-2)
-        starts = first.expand(x0.shape[:-1] + (parts, x0.shape[-1]))  # the first guess of every segment's start
-        for _ in range(parts):  # after k passes the first k segments are exact: at most ``parts`` passes
-            grid = run(starts)  # (B, parts, length + 1, S)
-            joined = torch.cat([first, grid[..., :-1, -1, :]], -2)
-            if _joined(joined, starts, span):
-                break
-            starts = joined
-        grid = torch.cat([grid[..., :-1, :].flatten(-3, -2), grid[..., -1:, -1, :]], -2)[..., :steps + 1, :]
-    position = ((t - t[0]) / h).detach()
-    nearest = position.round()
-    if bool(((position - nearest).abs() < 1e-6).all()):
-        return grid[..., nearest.long().clamp(max=steps), :]
-    k = position.floor().long().clamp(max=steps - 1)
-    w = (position - k).unsqueeze(-1)
-    return grid[..., k, :] * (1 - w) + grid[..., k + 1, :] * w
+        return run(x0, length)  # (B, steps + 1, S)
+    first = x0.unsqueeze(-2)  # every segment from the end of the one before it, until they join (Parareal without its coarse solver)
+    starts = first.expand(x0.shape[:-1] + (parts, x0.shape[-1]))  # the first guess of every segment's start
+    for _ in range(parts):  # after k passes the first k segments are exact: at most ``parts`` passes
+        grid = run(starts, length)  # (B, parts, length + 1, S)
+        joined = torch.cat([first, grid[..., :-1, -1, :]], -2)
+        if _joined(joined, starts, span):
+            break
+        starts = joined
+    return torch.cat([grid[..., :-1, :].flatten(-3, -2), grid[..., -1:, -1, :]], -2)[..., :steps + 1, :]
+
+
+def _tangents(model: SystemModel, p: Parameters, record: Record, x0: torch.Tensor, tableau, h, grid: torch.Tensor,
+              first: torch.Tensor, inverse: torch.Tensor, guarded) -> torch.Tensor:
+    """Forward mode along the plain run's step grid (U, steps + 1, S) of the distinct rows (``first``
+    of each, row b's at ``inverse[b]``): the tangent (B, steps + 1, S) of every row's grid states by
+    the chain rule of the steps, ``x'_{n+1} = A_n x'_n + b_n``. ``A_n`` (the step's Jacobian in the
+    state, S directions per distinct row) and ``b_n`` (its derivative along the row's parameter
+    tangent) come from forward-mode passes of one step over a chunk of grid states at once, so a
+    stage's operations run once per chunk rather than once per step; the recurrence is solved by
+    a scan of the steps' compositions in log2(steps) products."""
+    u, steps, s = grid.shape[0], grid.shape[-2] - 1, grid.shape[-1]
+    b = inverse.shape[0]
+
+    def constant(v):  # a parameter's primal with a zero tangent (choices as they are)
+        if v.dtype == torch.long:
+            return v
+        v = forward_ad.unpack_dual(v).primal.contiguous()
+        return forward_ad.make_dual(v, torch.zeros_like(v))
+
+    # A_n: the distinct rows, each repeated per state direction, the parameters' tangents zero
+    a_params = Parameters(*(constant(getattr(p, f.name)[first].repeat_interleave(s, 0)) for f in fields(p)))
+    basis = torch.eye(s, dtype=grid.dtype, device=grid.device)
+    jacobian = _one_step(model, a_params, _rows(record, first, s), tableau, h, guarded, grid[:, :-1].repeat_interleave(s, 0),
+                         lambda n: basis.view(1, s, 1, s).expand(u, s, n, s).flatten(0, 1))
+    jacobian = jacobian.unflatten(0, (u, s)).permute(0, 2, 3, 1)[inverse]  # (B, steps, S out, S in)
+    # b_n: every row with its parameters' tangent, the state's zero
+    own = lambda v: v if v.dtype == torch.long or _tangent(v) is not None else constant(v)
+    b_params = Parameters(*(own(getattr(p, f.name)) for f in fields(p)))
+    forcing = _one_step(model, b_params, record, tableau, h, guarded, grid[inverse, :-1],
+                        lambda n: torch.zeros(b, n, s, dtype=grid.dtype, device=grid.device))  # (B, steps, S)
+    shift = 1
+    while shift < steps:  # prefix compositions of the steps' affine maps (a Hillis-Steele scan): step k from the start
+        jacobian, forcing = (torch.cat([jacobian[:, :shift], jacobian[:, shift:] @ jacobian[:, :-shift]], 1),
+                             torch.cat([forcing[:, :shift], (jacobian[:, shift:] @ forcing[:, :-shift].unsqueeze(-1)).squeeze(-1)
+                                        + forcing[:, shift:]], 1))
+        shift *= 2
+    start = _tangent(x0)
+    start = torch.zeros(b, s, dtype=grid.dtype, device=grid.device) if start is None else start.expand(b, s)
+    moved = (jacobian @ start.view(b, 1, s, 1)).squeeze(-1) + forcing  # (B, steps, S)
+    return torch.cat([start.unsqueeze(1), moved], 1)
+
+
+def _one_step(model: SystemModel, p: Parameters, record: Record, tableau, h, guarded, x: torch.Tensor,
+              tangent) -> torch.Tensor:
+    """The tangent of one step from each of the states ``x`` (R, steps, S) with the tangents
+    ``tangent(n)`` (R, n, S) of a chunk of n of them: (R, steps, S), in chunks of at most
+    :data:`TANGENT_ELEMENTS` state values."""
+    rows, steps, s = x.shape
+    chunk = max(1, TANGENT_ELEMENTS // (rows * s))
+    out = []
+    for first in range(0, steps, chunk):
+        n = min(chunk, steps - first)
+        run = _stepper(model, p, record, tableau, h, first, n, n, guarded)
+        start = forward_ad.make_dual(x[:, first:first + n].contiguous(), tangent(n).contiguous())
+        moved = run(start, 1)[..., 1, :] if n > 1 else run(start[:, 0], 1)[..., 1:, :]  # one segment has no segment axis
+        out.append(forward_ad.unpack_dual(moved).tangent)
+    return torch.cat(out, 1)
+
+
+def _distinct(p: Parameters, x0: torch.Tensor, record: Record) -> tuple[torch.Tensor, torch.Tensor]:
+    """The first of each set of rows with the same parameters and start (U,) and every row's set
+    (B,): rows that differ only in their tangents (the sensitivities' directions) share one plain
+    run. Rows with signals of their own, or a value that is not a number, are all distinct."""
+    keys = torch.cat([p.gamma, p.choice.to(p.gamma.dtype), p.theta, p.theta_fixed, p.scale, x0], -1)
+    rows = torch.arange(keys.shape[0], device=keys.device)
+    if record.external.dim() == 3 or bool(torch.isnan(keys).any()):
+        return rows, rows
+    _, inverse = torch.unique(keys, dim=0, return_inverse=True)
+    first = torch.full((int(inverse.max()) + 1,), keys.shape[0], device=keys.device).scatter_reduce(0, inverse, rows, "amin")
+    return first, inverse
+
+
+def _rows(value, index: torch.Tensor, repeats: int = 1):
+    """Parameters or a record (its per-row signals) at the rows ``index``, each ``repeats`` times."""
+    take = lambda v: None if v is None else v[index].repeat_interleave(repeats, 0)
+    if isinstance(value, Parameters):
+        return Parameters(*(take(getattr(value, f.name)) for f in fields(value)))
+    if value.external.dim() != 3:
+        return value
+    return replace(value, external=take(value.external), pieces=value.pieces if value.pieces is None or value.pieces.dim() < 4
+                   else take(value.pieces))
+
+
+def _tangent(v: torch.Tensor | None) -> torch.Tensor | None:
+    return None if v is None else forward_ad.unpack_dual(v).tangent
 
 
 def segments(steps: int, x0: torch.Tensor, p: Parameters, record: Record) -> int:
@@ -152,11 +265,11 @@ def segments(steps: int, x0: torch.Tensor, p: Parameters, record: Record) -> int
     before it in the previous pass until every start is that end to half the working precision. A
     model that forgets its start within a segment joins in a few passes of one segment's length; one
     that never forgets it (an integrator) needs one pass per segment, the steps of a sequential
-    run. Runs that are differentiated (autograd or forward mode) are not segmented: their
-    derivative would stop at the first guesses."""
+    run. A run differentiated by autograd is not segmented: its derivative would stop at the
+    first guesses (in forward mode the plain run is segmented, its tangents follow the joined grid:
+    :func:`_tangents`)."""
     tensors = (x0, p.gamma, p.theta, p.theta_fixed, p.scale, record.t, record.external)
-    if any((v.requires_grad and torch.is_grad_enabled()) or forward_ad.unpack_dual(v).tangent is not None
-           for v in tensors):
+    if torch.is_grad_enabled() and any(v.requires_grad for v in tensors):
         return 1
     return max(1, min(SEGMENTS, steps // SEGMENT_STEPS))
 
