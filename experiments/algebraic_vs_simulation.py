@@ -10,7 +10,7 @@ its first two equations) and ``--refinement`` refinement steps, under three step
 - ``paper``: the config's rule (dM-scaled step, Eq. 16-18, with mu by Eq. 20);
 - ``robust``: a Gauss-Newton step in exponent units with a backtracking line search on the fitness.
 - ``damped``: ``robust`` with Levenberg-Marquardt damping 0.1 (the measured preset's step for candidates
-  judged by simulation, :data:`msam_torch.plan.SIMULATED`).
+  judged by simulation, :data:`msam_torch.run.plan.SIMULATED`).
 
 Simulation mode simulates the measured states (harmonic, van der Pol: x; third-order model: each
 state with the other two read from the data, ``coupling: separate``) with the midpoint rule (fixed
@@ -38,15 +38,15 @@ import pandas as pd
 import torch
 
 from experiments.common import ROOT, main_guard, markdown_table, set_threads, write_csv, write_text
-from msam_torch.api import nominal_parameters
-from msam_torch.candidates import EquationData
-from msam_torch.config import load_config
-from msam_torch.data import load_datasets
-from msam_torch.plan import make_trainer
-from msam_torch.plan import prepare
+from msam_torch.run.adapt import nominal_parameters
+from msam_torch.engine.candidates import EquationData
+from msam_torch.config.schema import load_config
+from msam_torch.data.loading import load_datasets
+from msam_torch.run.plan import make_trainer
+from msam_torch.run.plan import prepare
 from msam_torch.simulation import groups
-from msam_torch.simulation.adapt import prepare_group
-from msam_torch.spec import ModelSpec
+from msam_torch.run.adapt_simulated import prepare_group
+from msam_torch.model.spec import ModelSpec
 
 CONFIGS = ROOT / "configs"
 # The target model's adjustment per adjustable component (None: any function, its exponent ~0).

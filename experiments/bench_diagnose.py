@@ -22,11 +22,11 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from msam_torch.config import DataConfig, load_config
-from msam_torch.data import build_dataset
+from msam_torch.config.schema import DataConfig, load_config
+from msam_torch.data.loading import build_dataset
 from msam_torch.diagnose import diagnose
-from msam_torch.spec import ModelSpec
-from msam_torch.systems import SYSTEMS, WITHHELD, measure
+from msam_torch.model.spec import ModelSpec
+from msam_torch.data.systems import SYSTEMS, WITHHELD, measure
 
 CASE = "msd_coulomb"
 NOISE = 0.01

@@ -5,7 +5,7 @@
    after another as the Trainer does; the step time is the sum over chunks of the r-th repeat) vs the sequential reference path (one Candidate module at a time, torch.func
    sensitivities; measured on a few candidates and scaled to all), their ratio, and peak memory;
 2. 4096 candidates at N = 1e4 for 15 round-robin steps (wall time, peak memory), in one process
-   and sharded over ``--ranks`` processes (torch.distributed, as ``msam_torch.distributed``);
+   and sharded over ``--ranks`` processes (torch.distributed, as ``msam_torch.run.distributed``);
 3. wall time of each table protocol (Tables 2-4, Figure 5; the batched tensor programs).
 
     PYTHONPATH=. python experiments/bench_engine.py [--threads 1] [--ranks 2] [--repeats 7] [--skip-tables]
@@ -36,10 +36,10 @@ FEW_REPEATS_ABOVE = 10**7  # larger cells: 3 repeats
 
 def problem(candidates: int, samples: int):
     """EquationData, nominal theta (adjustable, fixed) and equation for a candidate count."""
-    from msam_torch.candidates import EquationData
-    from msam_torch.config import load_config
-    from msam_torch.spec import ModelSpec
-    from msam_torch.systems import SYSTEMS, measure
+    from msam_torch.engine.candidates import EquationData
+    from msam_torch.config.schema import load_config
+    from msam_torch.model.spec import ModelSpec
+    from msam_torch.data.systems import SYSTEMS, measure
 
     name, functions = CANDIDATES[candidates]
     if name == "wide":  # six components of the third-order model's states, F = {x1, x2, x3[, |x1|]}
@@ -63,10 +63,10 @@ def cell(candidates: int, samples: int, repeats: int, sequential: int) -> dict:
     """Median batched step time, scaled sequential step time, peak memory of one cell."""
     import torch
 
-    from msam_torch.candidates import Candidate, enumerate_choices
-    from msam_torch.protocol import MAX_ELEMENTS, chunk_size
-    from msam_torch.reference import reference_fitness, reference_step
-    from msam_torch.step import State, StepOptions, evaluate, step
+    from msam_torch.engine.candidates import Candidate, enumerate_choices
+    from msam_torch.run.trials import MAX_ELEMENTS, chunk_size
+    from msam_torch.engine.reference import reference_fitness, reference_step
+    from msam_torch.engine.step import State, StepOptions, evaluate, step
 
     data, theta, theta_fixed, _ = problem(candidates, samples)
     options = StepOptions()
@@ -105,15 +105,15 @@ def cell(candidates: int, samples: int, repeats: int, sequential: int) -> dict:
 
 def long_run(candidates: int, samples: int, steps: int) -> dict:
     """Stage 1 of Algorithm 1 for ``steps`` steps: wall time, peak memory. Under torchrun the
-    candidates are sharded over the ranks (:class:`msam_torch.distributed.ShardedTrainer`); the wall
+    candidates are sharded over the ranks (:class:`msam_torch.run.distributed.ShardedTrainer`); the wall
     time is the slowest rank's, CPU time and peak memory the sum over ranks."""
     import torch
     import torch.distributed as dist
 
-    from msam_torch.candidates import enumerate_choices
-    from msam_torch.distributed import ShardedTrainer, init_process_group
-    from msam_torch.protocol import chunk_size
-    from msam_torch.step import StepOptions
+    from msam_torch.engine.candidates import enumerate_choices
+    from msam_torch.run.distributed import ShardedTrainer, init_process_group
+    from msam_torch.run.trials import chunk_size
+    from msam_torch.engine.step import StepOptions
 
     joined = init_process_group("cpu")
     data, theta, theta_fixed, _ = problem(candidates, samples)
@@ -139,7 +139,7 @@ def long_run(candidates: int, samples: int, steps: int) -> dict:
 def tables() -> list[dict]:
     """Wall time of each table protocol's tensor programs (no file output)."""
     from experiments.common import all_trials, load_experiment, model_config
-    from msam_torch.protocol import run_trials
+    from msam_torch.run.trials import run_trials
 
     rows = []
     for name in ("table2_harmonic", "table2_vanderpol", "table3", "table4", "figure5"):
@@ -160,7 +160,7 @@ def tables() -> list[dict]:
 def child(args) -> None:
     import torch
 
-    from msam_torch.allocator import keep_freed_memory
+    from msam_torch.engine.allocator import keep_freed_memory
 
     keep_freed_memory()  # as the command-line tool and the experiments run
     torch.set_num_threads(args.threads)

@@ -34,14 +34,14 @@ import torch
 from scipy import signal
 from scipy.optimize import least_squares
 
-from msam_torch import datasets
-from msam_torch.allocator import keep_freed_memory
-from msam_torch.api import adapt
-from msam_torch.config import load_config
+from msam_torch.data import datasets
+from msam_torch.engine.allocator import keep_freed_memory
+from msam_torch.run.adapt import adapt
+from msam_torch.config.schema import load_config
 from msam_torch.diagnose import DiagnoseOptions, diagnose
-from msam_torch.diagnose.document import exponent_text
+from msam_torch.diagnose.report.document import exponent_text
 from msam_torch.simulation import EquationModel, simulate_equations as simulate
-from msam_torch.spec import ModelSpec, derivative_name, split_derivative
+from msam_torch.model.spec import ModelSpec, derivative_name, split_derivative
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = ROOT / "configs"
@@ -72,7 +72,7 @@ CASES = {
     "silverbox": Case(
         "silverbox", "train_multisine", "test_arrow", "V1", "V2",
         {"arrow full": None, "arrow no extrapolation": 32_000}, 50, "foh", ("mV", 1e3),
-        ("data.validation_file=../msam_torch/datasets/silverbox/test_arrow.csv.gz",),
+        ("data.validation_file=../msam_torch/data/datasets/silverbox/test_arrow.csv.gz",),
         [("published baselines on this split", "Champneys, Beintema, Toth, Schoukens, Rogers, 'Baseline results "
           "for selected nonlinear system identification benchmarks', arXiv:2405.10779 (2024); figures not "
           "reproduced here")]),

@@ -2,9 +2,9 @@
 against the limits (5 minutes on 2 cores, 4 GB), and the verdict beside that of a 35 k-row record
 of the same system.
 
-The system is a withheld-effect case of :mod:`msam_torch.systems` (default: a mass-spring-damper
+The system is a withheld-effect case of :mod:`msam_torch.data.systems` (default: a mass-spring-damper
 with unmodelled quadratic drag, multisine force), run for ``--seconds``. It is simulated on the
-small record's grid (:func:`msam_torch.systems.measure`, dopri5 at tolerance 1e-10); the large
+small record's grid (:func:`msam_torch.data.systems.measure`, dopri5 at tolerance 1e-10); the large
 record samples the same trajectory ``rows / small`` times finer by quintic Hermite interpolation
 of x, x_dot and x_ddot (``scipy.interpolate.BPoly.from_derivatives``, error far below the noise)
 with the force evaluated exactly. Each record gets its own white noise of ``--noise`` times the
@@ -36,7 +36,7 @@ import torch
 import yaml
 from scipy.interpolate import BPoly
 
-from msam_torch.systems import SYSTEMS, WITHHELD, measure
+from msam_torch.data.systems import SYSTEMS, WITHHELD, measure
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}

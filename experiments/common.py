@@ -18,9 +18,9 @@ from typing import Callable, Optional, Union
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from msam_torch.config import Config, dump_config, load_config, read_yaml, validate
-from msam_torch.protocol import MAX_ELEMENTS, Trial, TrialResult, run_trials
-from msam_torch.result import _finite, write_atomic
+from msam_torch.config.schema import Config, dump_config, load_config, read_yaml, validate
+from msam_torch.run.trials import MAX_ELEMENTS, Trial, TrialResult, run_trials
+from msam_torch.run.result import _finite, write_atomic
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -181,7 +181,7 @@ def protocol_notes(config: Config, experiment: ExperimentConfig | None = None) -
     if experiment is not None:
         lines.append(f"- parametric error: physical parameters perturbed with total relative error = level, split at "
                      f"random (flat Dirichlet), random signs, none below 5 % of its true value "
-                     f"(msam_torch.systems.perturb_parameters, design 2.8); {experiment.trials} trials per level, "
+                     f"(msam_torch.data.systems.perturb_parameters, design 2.8); {experiment.trials} trials per level, "
                      f"seed {experiment.seed}")
     return "\n".join(lines)
 
@@ -248,9 +248,9 @@ def set_threads(threads: int) -> None:
 
 
 def main_guard(fn) -> None:
-    """Run ``fn`` (with the allocator setting of msam_torch.allocator) and turn input errors into
+    """Run ``fn`` (with the allocator setting of msam_torch.engine.allocator) and turn input errors into
     one line and exit status 2."""
-    from msam_torch.allocator import keep_freed_memory
+    from msam_torch.engine.allocator import keep_freed_memory
     from msam_torch.errors import MSAMError
 
     keep_freed_memory()
@@ -270,7 +270,7 @@ def median_model(records: list[dict], equation, position: int) -> str:
     """The most frequent selection among ``records`` with the median exponent of each component."""
     from collections import Counter
 
-    from msam_torch.notation import format_component
+    from msam_torch.model.notation import format_component
 
     picks = [tuple(r["equations"][position]["adjustments"]) for r in records]
     common, count = Counter(picks).most_common(1)[0]

@@ -10,7 +10,7 @@ import pandas as pd
 
 from experiments.common import (dump_config, load_experiment, markdown_table, model_config, protocol_notes,
                                 run_protocol, save_figure, summary_rows, tensorboard_scalars, write_csv, write_text)
-from msam_torch.spec import ModelSpec
+from msam_torch.model.spec import ModelSpec
 
 COLUMNS = ["start_sum_abs_error", "start_rho", "final_sum_abs_error", "final_rho"]
 

@@ -16,9 +16,9 @@ import torch
 
 from experiments.common import (arguments, dump_config, load_experiment, main_guard, markdown_table, model_config,
                                 protocol_notes, run_protocol, save_figure, tensorboard_scalars, write_csv, write_text)
-from msam_torch.data import load_datasets
-from msam_torch.plan import prepare
-from msam_torch.protocol import fit_equation, trial_parameters
+from msam_torch.data.loading import load_datasets
+from msam_torch.run.plan import prepare
+from msam_torch.run.trials import fit_equation, trial_parameters
 
 
 def log10(values: torch.Tensor) -> list:

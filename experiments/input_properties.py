@@ -11,7 +11,7 @@ import collections
 
 from hypothesis import HealthCheck, given, settings
 
-from tests.test_input_properties import check_expression, check_override, expressions, overrides, values
+from tests.data.test_input_properties import check_expression, check_override, expressions, overrides, values
 
 
 def main() -> None:

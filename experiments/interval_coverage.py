@@ -3,7 +3,7 @@
     PYTHONPATH=. python experiments/interval_coverage.py [--cases msd_coulomb ...] [--noise 0.01 0.05]
         [--draws 20] [--seed-start 100] [--workers 2]
 
-For each withheld-effect case (``msam_torch.systems.WITHHELD``, data as the withheld-effect suite
+For each withheld-effect case (``msam_torch.data.systems.WITHHELD``, data as the withheld-effect suite
 makes them: the position or level measured, the input exact, noise of the given share of each
 measured signal's standard deviation, nominal theta exact) and noise level, ``--draws`` records
 with independent noise draws (seeds from ``--seed-start``) are diagnosed with the default options.
@@ -27,12 +27,12 @@ import torch
 
 from experiments.common import main_guard
 from experiments.withheld_effects import datasets
-from msam_torch.config import load_config
+from msam_torch.config.schema import load_config
 from msam_torch.diagnose import diagnose
-from msam_torch.spec import ModelSpec
-from msam_torch.systems import WITHHELD
+from msam_torch.model.spec import ModelSpec
+from msam_torch.data.systems import WITHHELD
 
-# total exponent of each simulated effect on the signal it depends on (msam_torch.systems)
+# total exponent of each simulated effect on the signal it depends on (msam_torch.data.systems)
 TRUTH = {"msd_coulomb": 0.0, "msd_quadratic_drag": 2.0, "msd_power_damping": 1.5, "msd_hardening": 3.0,
          "tank_torricelli": 0.5}
 

@@ -1,4 +1,4 @@
-"""Build the small dataset copies under ``msam_torch/datasets/`` from the full benchmark files.
+"""Build the small dataset copies under ``msam_torch/data/datasets/`` from the full benchmark files.
 
 Run once, from the repository root, with the full data at ``SOURCE`` (default ``../shared/data``):
 

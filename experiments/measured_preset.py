@@ -4,7 +4,7 @@ For each case ``adapt`` runs twice on the same noisy training frame: ``preset=pa
 step, Savitzky-Golay derivatives, nominal theta fixed; what a frame got before) and the default
 (``auto``: the ``measured`` preset). Printed: the adapted equation and the free-run R^2 on the
 held-out frame (``MSAM.score``). Cases: the quadratic-drag oscillator of tests/test_estimator.py
-under three excitations, withheld-effect cases of ``msam_torch.systems.WITHHELD`` (0.5 % noise),
+under three excitations, withheld-effect cases of ``msam_torch.data.systems.WITHHELD`` (0.5 % noise),
 and zoo cases from seeds that no test or figure uses (their ``derivatives`` key dropped, so the
 preset chooses).
 
@@ -22,7 +22,7 @@ import pandas as pd
 import torch
 
 from msam_torch import MSAM, MSAMError
-from msam_torch.systems import SYSTEMS, WITHHELD, System, measure, multisine
+from msam_torch.data.systems import SYSTEMS, WITHHELD, System, measure, multisine
 
 DRAG = {"m": 2.0, "c": 3.0, "k": 20.0}
 DRAG_MODEL = {"states": ["x", "x_dot"], "inputs": ["u"], "parameters": DRAG,

@@ -24,11 +24,11 @@ import numpy as np
 import torch
 
 from experiments.common import main_guard
-from msam_torch.api import adapt_equation
-from msam_torch.config import load_config
-from msam_torch.data import load_datasets
-from msam_torch.spec import ModelSpec
-from msam_torch.systems import perturb_parameters
+from msam_torch.run.adapt import adapt_equation
+from msam_torch.config.schema import load_config
+from msam_torch.data.loading import load_datasets
+from msam_torch.model.spec import ModelSpec
+from msam_torch.data.systems import perturb_parameters
 
 THETA_MODES = {
     "fixed": [],

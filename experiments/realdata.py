@@ -1,4 +1,4 @@
-"""MSAM on the real benchmark records carried in ``msam_torch/datasets``: what ``msam run`` finds.
+"""MSAM on the real benchmark records carried in ``msam_torch/data/datasets``: what ``msam run`` finds.
 
     PYTHONPATH=. python experiments/realdata.py [silverbox emps cascaded_tanks us_is]
 
@@ -18,16 +18,16 @@ from pathlib import Path
 
 import torch
 
-from msam_torch.allocator import keep_freed_memory
-from msam_torch.api import adapt
-from msam_torch.candidates import EquationData
-from msam_torch.config import load_config
-from msam_torch.data import load_datasets
-from msam_torch.diagnose.catalogue import effect_entry
-from msam_torch.result import EquationResult, adjusted_columns
+from msam_torch.engine.allocator import keep_freed_memory
+from msam_torch.run.adapt import adapt
+from msam_torch.engine.candidates import EquationData
+from msam_torch.config.schema import load_config
+from msam_torch.data.loading import load_datasets
+from msam_torch.diagnose.catalogue.entries import effect_entry
+from msam_torch.run.result import EquationResult, adjusted_columns
 from msam_torch.simulation import free_run_models
-from msam_torch.spec import ModelSpec
-from msam_torch.step import lstsq
+from msam_torch.model.spec import ModelSpec
+from msam_torch.engine.step import lstsq
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
@@ -51,7 +51,7 @@ def one_step(equation, entry, signals: dict) -> torch.Tensor:
 
 def named_laws(equation, entry, starting: torch.Tensor) -> list[tuple[int, str, float]]:
     """(component, catalogue name, the name's exponent) of each adjusted component of ``entry``
-    whose exponent falls in a catalogue interval (msam_torch.diagnose.catalogue); the name's
+    whose exponent falls in a catalogue interval (msam_torch.diagnose.catalogue.entries); the name's
     exponent is the catalogue's (Coulomb friction: gamma -1, the sign of the rate), or the fitted
     one for an entry with a range; ``starting``: the nominal theta (Q,), which says hardening or
     softening."""
@@ -84,7 +84,7 @@ def rival(equation, eq, starting: torch.Tensor) -> tuple[int, dict] | None:
 
 def retuned_at(equation, entry, signals: dict, component: int, exponent: float) -> EquationResult:
     """``entry`` with one exponent set to ``exponent`` and every theta re-estimated by linear least
-    squares (the theta re-estimation of msam_torch.tuning, on the same signals)."""
+    squares (the theta re-estimation of msam_torch.engine.tuning, on the same signals)."""
     exponents = list(entry.exponents)
     exponents[component] = exponent
     moved = replace(entry, exponents=exponents)

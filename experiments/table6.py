@@ -1,9 +1,9 @@
 """Table 6: the IS model y_dot = alpha (e - y) on US macro data (statsmodels macrodata, the repo's
-copy in msam_torch/datasets/us_macro), trained on 1959-1989 and validated on 1990-2008: the parameter-tuned
+copy in msam_torch/data/datasets/us_macro), trained on 1959-1989 and validated on 1990-2008: the parameter-tuned
 original model beside the adapted models, and the paper's figures.
 
     PYTHONPATH=. python experiments/table6.py [configs/is_model.yaml] [--out DIR]
-    PYTHONPATH=. python experiments/table6.py --prepare   # (re)derive msam_torch/datasets/us_macro/is_income_expenditure.csv
+    PYTHONPATH=. python experiments/table6.py --prepare   # (re)derive msam_torch/data/datasets/us_macro/is_income_expenditure.csv
 
 Each model row is written to ``<out>/rows/<name>.json`` when done and reused by the next run.
 """
@@ -19,13 +19,13 @@ import torch
 
 from experiments.common import (ROOT, dump_config, set_threads, main_guard, markdown_table, protocol_notes, save_figure,
                                 tensorboard_scalars, write_csv, write_text)
-from msam_torch.api import adapt
-from msam_torch.candidates import Candidate, EquationData
-from msam_torch.config import load_config
-from msam_torch.data import load_datasets
-from msam_torch.fitness import correlation, sum_abs_error
-from msam_torch.result import write_atomic
-from msam_torch.spec import ModelSpec
+from msam_torch.run.adapt import adapt
+from msam_torch.engine.candidates import Candidate, EquationData
+from msam_torch.config.schema import load_config
+from msam_torch.data.loading import load_datasets
+from msam_torch.engine.fitness import correlation, sum_abs_error
+from msam_torch.run.result import write_atomic
+from msam_torch.model.spec import ModelSpec
 
 PAPER = {"original (parameter-tuned)": (4944.38, 0.519, 6361.00, -0.417), "adapted": (678.40, 0.973, 2186.98, 0.759)}
 VARIANTS = {
@@ -69,7 +69,7 @@ def main() -> int:
     set_threads(args.threads)
     config_path, out = Path(args.config), Path(args.out)
     if args.prepare:
-        print(f"wrote {prepare(ROOT / 'msam_torch/datasets/us_macro/macrodata.csv', ROOT / 'msam_torch/datasets/us_macro/is_income_expenditure.csv')}")
+        print(f"wrote {prepare(ROOT / 'msam_torch/data/datasets/us_macro/macrodata.csv', ROOT / 'msam_torch/data/datasets/us_macro/is_income_expenditure.csv')}")
         return 0
     started = time.perf_counter()
     config = load_config(config_path)

@@ -1,4 +1,4 @@
-"""The noise-floor window rule (:func:`msam_torch.derivatives.choose_window`) against the best fixed
+"""The noise-floor window rule (:func:`msam_torch.signals.derivatives.choose_window`) against the best fixed
 Savitzky-Golay window in hindsight: on the bundled harmonic oscillator and van der Pol (x, second
 derivative) and third-order system (x1, x2, x3, first derivative), at 0.1, 1 and 5 % noise, seeds 0
 and 1, the RMS error of the highest derivative with the chosen window over the least error of the
@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from msam_torch.derivatives import estimate
-from msam_torch.systems import SYSTEMS, measure
+from msam_torch.signals.derivatives import estimate
+from msam_torch.data.systems import SYSTEMS, measure
 
 CASES = (("harmonic", (("x", 2),)), ("vanderpol", (("x", 2),)), ("sode3", (("x1", 1), ("x2", 1), ("x3", 1))))
 NOISE = (0.001, 0.01, 0.05)

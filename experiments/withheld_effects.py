@@ -1,6 +1,6 @@
 """Withheld-effect suite for ``msam diagnose`` (issue 5), against a PySINDy discrepancy-model baseline.
 
-Each case is a true system with a known effect (``msam_torch.systems.WITHHELD``); data are
+Each case is a true system with a known effect (``msam_torch.data.systems.WITHHELD``); data are
 simulated with it, and the starting model is given without it. Grid: noise 0, 1, 5 % (of each
 measured signal's standard deviation), parametric error 0, 25, 50 % (docs/design.md 2.8, drawn per
 seed), seeds 0..S-1. Only the displacement (level) and the input are measured; velocities and
@@ -30,13 +30,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from msam_torch.config import DataConfig, load_config
-from msam_torch.data import build_dataset
+from msam_torch.config.schema import DataConfig, load_config
+from msam_torch.data.loading import build_dataset
 from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
-from msam_torch.diagnose.catalogue import NOT_CATALOGUED, name_effect
-from msam_torch.api import nominal_parameters
-from msam_torch.spec import ModelSpec
-from msam_torch.systems import SYSTEMS, WITHHELD, measure
+from msam_torch.diagnose.catalogue.entries import NOT_CATALOGUED, name_effect
+from msam_torch.run.adapt import nominal_parameters
+from msam_torch.model.spec import ModelSpec
+from msam_torch.data.systems import SYSTEMS, WITHHELD, measure
 
 NOISE = (0.0, 0.01, 0.05)
 PARAMETRIC = (0.0, 0.25, 0.5)

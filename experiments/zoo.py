@@ -36,9 +36,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import torch  # noqa: E402
 
-from msam_torch.allocator import keep_freed_memory  # noqa: E402
+from msam_torch.engine.allocator import keep_freed_memory  # noqa: E402
 from msam_torch.diagnose import Verdict, diagnose  # noqa: E402
-from msam_torch.result import _finite  # noqa: E402
+from msam_torch.run.result import _finite  # noqa: E402
 from msam_torch.zoo import DOMAINS, generate, score, sindy  # noqa: E402
 
 LOW_NOISE = 0.01  # "<= 1 % noise" rows of the acceptance figures

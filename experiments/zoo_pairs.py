@@ -1,4 +1,4 @@
-"""Several effects in turn on generated cases (:mod:`msam_torch.diagnose.multi`): zoo cases that
+"""Several effects in turn on generated cases (:mod:`msam_torch.diagnose.effects.multi`): zoo cases that
 withhold two effects at once (:func:`msam_torch.zoo.generate_pair`), and single-effect and null
 cases of the ordinary zoo (:func:`msam_torch.zoo.generate`) to count spurious effects added in turn.
 

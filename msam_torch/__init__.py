@@ -11,31 +11,31 @@ from typing import TYPE_CHECKING
 __version__ = "0.1.0"
 
 _HOME = {  # public name -> the submodule that defines it
-    "adapt": "api",
-    "Candidate": "candidates",
-    "EquationData": "candidates",
-    "Config": "config",
-    "load_config": "config",
+    "adapt": "run.adapt",
+    "Candidate": "engine.candidates",
+    "EquationData": "engine.candidates",
+    "Config": "config.schema",
+    "load_config": "config.schema",
     "ConfigError": "errors",
     "DataError": "errors",
     "MSAMError": "errors",
-    "ModelSpec": "spec",
-    "MSAM": "estimator",
-    "StepOptions": "step",
-    "Trainer": "trainer",
+    "ModelSpec": "model.spec",
+    "MSAM": "run.estimator",
+    "StepOptions": "engine.step",
+    "Trainer": "engine.trainer",
 }
 
 __all__ = [*_HOME, "__version__"]
 
 if TYPE_CHECKING:  # the same names for type checkers and the API docs
-    from .api import adapt
-    from .candidates import Candidate, EquationData
-    from .config import Config, load_config
-    from .errors import ConfigError, DataError, MSAMError
-    from .estimator import MSAM
-    from .spec import ModelSpec
-    from .step import StepOptions
-    from .trainer import Trainer
+    from msam_torch.run.adapt import adapt
+    from msam_torch.engine.candidates import Candidate, EquationData
+    from msam_torch.config.schema import Config, load_config
+    from msam_torch.errors import ConfigError, DataError, MSAMError
+    from msam_torch.run.estimator import MSAM
+    from msam_torch.model.spec import ModelSpec
+    from msam_torch.engine.step import StepOptions
+    from msam_torch.engine.trainer import Trainer
 
 
 def __getattr__(name: str):

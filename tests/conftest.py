@@ -12,7 +12,7 @@ def _seed_and_guard_globals():
 
 
 def pytest_configure(config):
-    """The allocator setting the command-line tool runs under (msam_torch.allocator)."""
-    from msam_torch.allocator import keep_freed_memory
+    """The allocator setting the command-line tool runs under (msam_torch.engine.allocator)."""
+    from msam_torch.engine.allocator import keep_freed_memory
 
     keep_freed_memory()

@@ -3,10 +3,10 @@ from functools import lru_cache
 from pathlib import Path
 
 
-from msam_torch.candidates import EquationData
-from msam_torch.config import load_config
-from msam_torch.spec import ModelSpec
-from msam_torch.systems import SYSTEMS, measure
+from msam_torch.engine.candidates import EquationData
+from msam_torch.config.schema import load_config
+from msam_torch.model.spec import ModelSpec
+from msam_torch.data.systems import SYSTEMS, measure
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 

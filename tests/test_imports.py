@@ -52,16 +52,16 @@ def test_no_import_circle_in_the_package():
         order = list(TopologicalSorter(GRAPH).static_order())
     except CycleError as error:
         pytest.fail(f"import circle: {' -> '.join(error.args[1])}")
-    assert order.index("msam_torch.simulation.solver") < order.index("msam_torch.api")
-    assert order.index("msam_torch.diagnose.simulated") < order.index("msam_torch.diagnose.core")
+    assert order.index("msam_torch.simulation.solver") < order.index("msam_torch.run.adapt")
+    assert order.index("msam_torch.diagnose.stages.simulated") < order.index("msam_torch.diagnose.stages.pipeline")
 
 
 def test_the_checker_sees_a_function_level_circle(tmp_path):
     """A circle closed by an import inside a function is found (the check can fail)."""
     graph = dict(GRAPH)
-    graph["msam_torch.plan"] = graph["msam_torch.plan"] | {"msam_torch.api"}  # api imports plan
+    graph["msam_torch.run.plan"] = graph["msam_torch.run.plan"] | {"msam_torch.run.adapt"}  # api imports plan
     with pytest.raises(CycleError):
         list(TopologicalSorter(graph).static_order())
-    source = "def f():\n    from .api import adapt\n    from .simulation.model import SystemModel\n"
+    source = "def f():\n    from .run.adapt import adapt\n    from .simulation.ode import SystemModel\n"
     (tmp_path / "m.py").write_text(source)
-    assert {"msam_torch.api", "msam_torch.simulation.model", "msam_torch.simulation"} <= imports("msam_torch.m", tmp_path / "m.py")
+    assert {"msam_torch.run.adapt", "msam_torch.simulation.ode", "msam_torch.simulation"} <= imports("msam_torch.m", tmp_path / "m.py")

@@ -5,10 +5,10 @@ shrinks (``msam diagnose``; docs/design.md section 3).
 ``gap_report.json`` and ``report.md`` with PNG plots; ``GapReport.verdict_kind`` is a
 :class:`Verdict`.
 """
-from .catalogue import NOT_CATALOGUED, entries
-from .core import diagnose
-from .options import DiagnoseOptions
-from .report import EquationGap, GapReport
-from .verdict import Verdict
+from msam_torch.diagnose.catalogue.entries import NOT_CATALOGUED, entries
+from msam_torch.diagnose.stages.pipeline import diagnose
+from msam_torch.diagnose.options import DiagnoseOptions
+from msam_torch.diagnose.report.gap_report import EquationGap, GapReport
+from msam_torch.diagnose.compare.verdict import Verdict
 
 __all__ = ["diagnose", "DiagnoseOptions", "GapReport", "EquationGap", "Verdict", "entries", "NOT_CATALOGUED"]

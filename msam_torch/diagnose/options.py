@@ -4,8 +4,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ..errors import ConfigError
-from ..estimation import SAMPLES
+from msam_torch.errors import ConfigError
+from msam_torch.run.estimation import SAMPLES
 
 AGREEMENT = 1e-2  # free runs at a step and at twice it agree within this share of a state's magnitude:
 # the resolution to which the diagnosis checks its free runs, and so compares them
@@ -15,7 +15,7 @@ AGREEMENT = 1e-2  # free runs at a step and at twice it agree within this share 
 class DiagnoseOptions:
     """Options of :func:`msam_torch.diagnose.diagnose` (defaults are the documented method)."""
 
-    half_width: float | None = None  # test-function half-width in time units (default: from the band, msam_torch.estimation)
+    half_width: float | None = None  # test-function half-width in time units (default: from the band, msam_torch.run.estimation)
     steps: int = 30  # damped variable-projection steps per hypothesis
     damping: float = 1e-3  # Levenberg-Marquardt damping of the exponent steps
     bootstrap: int = 16  # bootstrap trials (time blocks and noise), run as one batch

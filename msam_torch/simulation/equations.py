@@ -15,11 +15,11 @@ from typing import Mapping, Sequence
 import numpy as np
 import torch
 
-from ..errors import MSAMError
-from ..spec import Equation, ModelSpec, derivative_name, split_derivative
-from .model import Parameters, SystemModel
-from .record import Record
-from .solver import simulate
+from msam_torch.errors import MSAMError
+from msam_torch.model.spec import Equation, ModelSpec, derivative_name, split_derivative
+from msam_torch.simulation.ode import Parameters, SystemModel
+from msam_torch.simulation.record import Record
+from msam_torch.simulation.solver import simulate
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""The simulation evaluator of :class:`~msam_torch.trainer.Trainer`: candidates judged by their
+"""The simulation evaluator of :class:`~msam_torch.engine.trainer.Trainer`: candidates judged by their
 simulated outputs (the paper's section 2 alternative to Eq. 6).
 
 The step is Eq. 15-18 on the simulated output: the structural sensitivities are the change
@@ -15,13 +15,13 @@ from dataclasses import replace
 
 import torch
 
-from ..fitness import correlation, fitness, sum_abs_error
-from ..sensitivity import condition_number, structural_sensitivities
-from ..step import Evaluation, State, StepOptions, StepResult, advance, lstsq, step_size
-from ..trainer import measures
-from .least_squares import fit_parameters
-from .problem import SimulationData, SimulationSelection, packed, unpacked, usable
-from .sensitivities import jacobians
+from msam_torch.engine.fitness import correlation, fitness, sum_abs_error
+from msam_torch.engine.sensitivity import condition_number, structural_sensitivities
+from msam_torch.engine.step import Evaluation, State, StepOptions, StepResult, advance, lstsq, step_size
+from msam_torch.engine.trainer import measures
+from msam_torch.simulation.least_squares import fit_parameters
+from msam_torch.simulation.problem import SimulationData, SimulationSelection, packed, unpacked, usable
+from msam_torch.simulation.sensitivities import jacobians
 
 
 def _initial(selection: SimulationSelection, state: State) -> torch.Tensor:
@@ -32,7 +32,7 @@ def _initial(selection: SimulationSelection, state: State) -> torch.Tensor:
 
 
 class SimulationEvaluator:
-    """Evaluator for :class:`~msam_torch.trainer.Trainer`: candidates judged by their simulation.
+    """Evaluator for :class:`~msam_torch.engine.trainer.Trainer`: candidates judged by their simulation.
     The evaluation of the state a line-search step moved to is kept from its batch, so the
     trainer's evaluation of that state simulates nothing."""
 

@@ -7,13 +7,13 @@ from pathlib import Path
 
 import torch
 
-from ..config import Config
-from ..spec import ModelSpec
-from .least_squares import fit_parameters
-from .model import Parameters, SystemModel, build_model, output_states, state_limits
-from .problem import SimulationData
-from .record import Record, load_records
-from .solver import simulate
+from msam_torch.config.schema import Config
+from msam_torch.model.spec import ModelSpec
+from msam_torch.simulation.least_squares import fit_parameters
+from msam_torch.simulation.ode import Parameters, SystemModel, build_model, output_states, state_limits
+from msam_torch.simulation.problem import SimulationData
+from msam_torch.simulation.record import Record, load_records
+from msam_torch.simulation.solver import simulate
 
 
 def free_run(data: SimulationData, record: Record, choice, gamma, theta, theta_fixed, steps: int = 6,
@@ -57,7 +57,7 @@ def free_runs(config: Config, spec: ModelSpec, models: dict[str, list], base_dir
     states fitted (``steps`` Levenberg-Marquardt steps). ``models`` maps a label to one entry per
     equation with ``adjustments`` (per component: the adjustment text, or None for an unadjusted
     or fixed component), ``exponents`` and ``theta`` in the data's units, e.g.
-    :class:`~msam_torch.result.EquationResult`."""
+    :class:`~msam_torch.run.result.EquationResult`."""
     model = build_model(spec, spec.equations)
     outputs = output_states(config, spec, model)
     train, held_out = load_records(config, spec, model, outputs, Path(base_dir), dtype, data, validation)

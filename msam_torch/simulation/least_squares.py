@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import torch
 
-from ..step import lstsq
-from .problem import SimulationData, unpacked, usable
-from .sensitivities import jacobians
+from msam_torch.engine.step import lstsq
+from msam_torch.simulation.problem import SimulationData, unpacked, usable
+from msam_torch.simulation.sensitivities import jacobians
 
 DAMPING = (0.0, 1e-4, 1e-2, 1.0)  # Levenberg-Marquardt dampings tried at once
 

@@ -11,10 +11,10 @@ from dataclasses import dataclass
 
 import torch
 
-from ..step import State
-from .model import Parameters, SystemModel
-from .record import Record
-from .solver import simulate
+from msam_torch.engine.step import State
+from msam_torch.simulation.ode import Parameters, SystemModel
+from msam_torch.simulation.record import Record
+from msam_torch.simulation.solver import simulate
 
 
 @dataclass(frozen=True)

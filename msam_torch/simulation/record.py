@@ -1,7 +1,7 @@
 """Measured records for simulation: time, external signals (inputs, states read from the data)
 and the measured outputs on a uniform grid, built by the project's one loader
-(:func:`msam_torch.data.load_datasets`) from a config's file or system, a path, an in-memory table
-(pandas DataFrame, mapping of arrays) or a :class:`~msam_torch.data.Dataset`.
+(:func:`msam_torch.data.loading.load_datasets`) from a config's file or system, a path, an in-memory table
+(pandas DataFrame, mapping of arrays) or a :class:`~msam_torch.data.loading.Dataset`.
 
 Measured signals enter the record as measured (no smoothing); a simulated state that is not
 measured starts from ``simulation.initial_guess``, else from the configured derivative estimator
@@ -15,13 +15,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..config import Config
-from ..data import Dataset, Table, resolve_datasets
-from ..derivatives import DerivativeEstimator
-from ..errors import DataError
-from ..information import check_simulation_record
-from ..spec import ModelSpec, split_derivative
-from .model import SystemModel
+from msam_torch.config.schema import Config
+from msam_torch.data.loading import Dataset, Table, resolve_datasets
+from msam_torch.signals.derivatives import DerivativeEstimator
+from msam_torch.errors import DataError
+from msam_torch.data.information import check_simulation_record
+from msam_torch.model.spec import ModelSpec, split_derivative
+from msam_torch.simulation.ode import SystemModel
 
 
 @dataclass(frozen=True)
@@ -92,7 +92,7 @@ def load_records(config: Config, spec: ModelSpec, model: SystemModel, outputs: t
                  validation: Table | Dataset | str | Path | None = None,
                  estimator: DerivativeEstimator | None = None) -> tuple[Record, Record | None]:
     """Training and (if configured or given) validation records for ``model``; ``data`` and
-    ``validation`` replace the config's data source as in :func:`msam_torch.data.resolve_datasets`,
+    ``validation`` replace the config's data source as in :func:`msam_torch.data.loading.resolve_datasets`,
     states that start from a measured lower derivative estimated with ``estimator``."""
     sim = config.adaptation.simulation
     measured = set(config.data.columns) if config.data.system is None and not isinstance(data, Dataset) else set()

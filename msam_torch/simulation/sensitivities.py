@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 import torch
 import torch.autograd.forward_ad as forward_ad
 
-from .problem import SimulationData, unpacked, usable
+from msam_torch.simulation.problem import SimulationData, unpacked, usable
 
 
 @dataclass(frozen=True)

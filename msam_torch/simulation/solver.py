@@ -27,8 +27,8 @@ import torch
 import torch.autograd.forward_ad as forward_ad
 from torchdiffeq import odeint
 
-from .model import Parameters, SystemModel
-from .record import Record
+from msam_torch.simulation.ode import Parameters, SystemModel
+from msam_torch.simulation.record import Record
 
 # Explicit Runge-Kutta tableaus: stage times (sixths of a step), stage coefficients, weights.
 TABLEAUS = {

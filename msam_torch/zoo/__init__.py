@@ -7,10 +7,10 @@ effect, or nothing, and returns a :class:`Case` with its truth, its starting-mod
 project's schema and its training and held-out records; ``generate_pair(seed)`` withholds two
 effects at once (:mod:`.pairs`).
 """
-from . import score, sindy
-from .case import NOISE_LEVELS, NULL_SHARE, SHARE_FLOOR, Case, generate, plan
-from .domains import DOMAINS
-from .effects import OUT_OF_CATALOGUE
-from .pairs import generate_pair
+from msam_torch.zoo import score, sindy
+from msam_torch.zoo.case import NOISE_LEVELS, NULL_SHARE, SHARE_FLOOR, Case, generate, plan
+from msam_torch.zoo.domains import DOMAINS
+from msam_torch.zoo.effects import OUT_OF_CATALOGUE
+from msam_torch.zoo.pairs import generate_pair
 
 __all__ = ["score", "sindy", "generate", "generate_pair", "plan", "NULL_SHARE", "Case", "DOMAINS", "OUT_OF_CATALOGUE", "NOISE_LEVELS", "SHARE_FLOOR"]

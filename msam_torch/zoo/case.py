@@ -15,12 +15,12 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from ..spec import split_derivative
-from . import excitation
-from .domains import DOMAINS
-from .effects import Combined, DrawnEffect
-from .simulate import dense_grid, effect_share, rms, signals, simulate, unabsorbed
-from .system import System
+from msam_torch.model.spec import split_derivative
+from msam_torch.zoo import excitation
+from msam_torch.zoo.domains import DOMAINS
+from msam_torch.zoo.effects import Combined, DrawnEffect
+from msam_torch.zoo.simulate import dense_grid, effect_share, rms, signals, simulate, unabsorbed
+from msam_torch.zoo.system import System
 
 NULL_SHARE, OUT_OF_CATALOGUE_SHARE = 0.25, 0.15  # probabilities of a null and of an out-of-catalogue case
 NOISE_LEVELS = (0.0, 0.005, 0.01, 0.02, 0.05)  # fraction of each measured signal's standard deviation

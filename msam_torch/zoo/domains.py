@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .effects import input_effects
-from .system import Effect, Equation, System
+from msam_torch.zoo.effects import input_effects
+from msam_torch.zoo.system import Effect, Equation, System
 
 
 def log_uniform(rng: np.random.Generator, low: float, high: float) -> float:

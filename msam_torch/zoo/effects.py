@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .system import Effect, power, term_value
+from msam_torch.zoo.system import Effect, power, term_value
 
 OUT_OF_CATALOGUE = ("dead zone", "saturation", "backlash", "hysteresis")
 

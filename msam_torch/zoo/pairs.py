@@ -1,5 +1,5 @@
 """Zoo cases withholding two effects at once, for the diagnosis of several effects in turn
-(:mod:`msam_torch.diagnose.multi`).
+(:mod:`msam_torch.diagnose.effects.multi`).
 
 ``generate_pair(seed)`` draws a system of any domain that holds two catalogued effects a diagnosis
 can tell apart (:func:`~.effects.separable`), withholds both, each sized like a single withheld
@@ -13,10 +13,10 @@ from itertools import combinations
 
 import numpy as np
 
-from .case import ATTEMPTS, SAMPLES, Case, draw
-from .domains import DOMAINS
-from .effects import separable
-from .system import System
+from msam_torch.zoo.case import ATTEMPTS, SAMPLES, Case, draw
+from msam_torch.zoo.domains import DOMAINS
+from msam_torch.zoo.effects import separable
+from msam_torch.zoo.system import System
 
 
 def pairs(system: System) -> list:

@@ -8,7 +8,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.interpolate import CubicSpline, interp1d
 
-from .system import System, term_value
+from msam_torch.zoo.system import System, term_value
 
 DENSE = 8  # dense input samples per sample interval
 TOLERANCE = 1e-8  # relative; absolute: 1e-2 of it times each state's typical size

@@ -16,8 +16,8 @@ import warnings
 
 import numpy as np
 
-from ..spec import split_derivative
-from .score import TOLERANCE
+from msam_torch.model.spec import split_derivative
+from msam_torch.zoo.score import TOLERANCE
 
 SELF_POWERS = (-1.0, -0.5, 0.5, 1.0, 1.5, 2.0, 3.0)
 CROSS_POWERS = (1.0, 2.0)

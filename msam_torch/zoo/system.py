@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..spec import split_derivative
+from msam_torch.model.spec import split_derivative
 
 
 def term_value(term: str, values: dict) -> np.ndarray:

@@ -1,0 +1,2 @@
+"""The effect catalogue (``catalogue.yaml``) and the names it gives fitted hypotheses within
+confidence."""

@@ -1,0 +1,276 @@
+"""The gap report's figures: every one titled, its axes labelled with units (:class:`Units`) and a
+legend, rendered once to PNG at :data:`DPI` (the Markdown's files, the HTML's embedded images,
+TensorBoard's images).
+
+Per equation: the residual of the structure fitted where it holds over time and against each
+signal (where); the residual's autocorrelation and its cross-correlation with each input, with
+the white-noise band +-1.96/sqrt(N) (:func:`correlations`). Per record: the free runs of the
+starting, theta-refitted and adapted models against the measurement, and where the model has
+inputs, the empirical frequency response (Welch cross-spectral estimate, ``scipy.signal``) of the
+data and of each model's free run (:func:`frequency_response`).
+"""
+from __future__ import annotations
+
+import io
+import math
+import textwrap
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal as sig
+from statsmodels.tsa.stattools import acf, ccf
+
+from msam_torch.model.spec import split_derivative
+
+DPI = 130
+LAGS = 40  # correlation lags shown, at most (and at most a quarter of the residual)
+BAND = 1.96  # white-noise band of a correlation: +-BAND / sqrt(N) (95 %)
+EXCITED = 1e-3  # a frequency is shown where the input's power is at least this share of its peak
+MODELS = ("start", "retuned", "adapted")
+NAMES = {"measured": "measured", "start": "starting model", "retuned": "theta re-fitted", "adapted": "adapted model"}
+COLOURS = {"measured": "black", "start": "tab:red", "retuned": "tab:orange", "adapted": "tab:green"}
+
+
+@dataclass(frozen=True)
+class Figure:
+    """One rendered figure: ``name`` (file name), ``title`` and the PNG bytes."""
+
+    name: str
+    title: str
+    png: bytes
+
+
+class Units:
+    """Axis labels from the config: a declared ``model.quantities`` unit (``x [m]``, a derivative
+    ``x_dot [m per time unit]``), else the declared quantity, else the data column it is read
+    from, else a note that no unit is declared."""
+
+    def __init__(self, config: dict):
+        model, data = config.get("model", {}), config.get("data", {}) or {}
+        self.quantities = model.get("quantities", {}) or {}
+        self.columns = data.get("columns", {}) or {}
+        self.time_source = f"column {data['time']}" if data.get("time") else "units of the record"
+        self.time = f"time ({self.time_source})"
+
+    def unit(self, name: str) -> str | None:
+        own = (self.quantities.get(name) or {}).get("unit")
+        base, order = split_derivative(name)
+        declared = (self.quantities.get(base) or {}).get("unit") if order else None
+        if own is not None or declared is None:
+            return own
+        return f"{declared} per time unit" + ("²" if order == 2 else "")
+
+    def label(self, name: str) -> str:
+        unit = self.unit(name)
+        if unit is not None:
+            return f"{name} [{unit}]"
+        base, order = split_derivative(name)
+        if (self.quantities.get(name) or {}).get("quantity") is not None:
+            return f"{name} ({self.quantities[name]['quantity']}, unit not declared)"
+        if (self.quantities.get(base) or {}).get("quantity") is not None:
+            rate = {1: "rate of ", 2: "second derivative of "}[order]
+            return f"{name} ({rate}{self.quantities[base]['quantity']}, unit not declared)"
+        if base in self.columns:
+            return f"{name} ({'' if order == 0 else f'd{order}/dt{order} of '}column {self.columns[base]})"
+        return f"{name} (no unit declared)"
+
+    def ratio(self, output: str, input_: str) -> str:
+        a, b = self.unit(output), self.unit(input_)
+        return f"|{output} / {input_}|" + (f" [{a}/{b}]" if a and b else " (no units declared)")
+
+
+def correlations(residual: np.ndarray, inputs: dict, lags: int = LAGS) -> dict:
+    """Autocorrelation of ``residual`` at lags 0..L and its cross-correlation with each input at
+    lags -L..L (``ccf[u][L + k]``: residual at t + k against the input at t), L at most a quarter
+    of the samples; ``band``: the 95 % white-noise band 1.96/sqrt(N)."""
+    r = np.asarray(residual, dtype=float)
+    n = r.size
+    lags = max(1, min(lags, n // 4))
+    out = {"lags": lags, "n": n, "band": BAND / math.sqrt(n), "acf": np.zeros(lags + 1), "ccf": {}}
+    if not r.std() > 0:  # a residual that is exactly constant correlates with nothing
+        return out
+    out["acf"] = acf(r, nlags=lags, fft=True)
+    for name, u in inputs.items():
+        u = np.asarray(u, dtype=float)
+        if not u.std() > 0:
+            continue
+        ahead, behind = ccf(r, u, adjusted=False, nlags=lags + 1), ccf(u, r, adjusted=False, nlags=lags + 1)
+        out["ccf"][name] = np.concatenate([behind[1:][::-1], ahead])
+    return out
+
+
+def frequency_response(t: np.ndarray, u: np.ndarray, ys: np.ndarray) -> tuple:
+    """Empirical transfer estimate ``P_uy / P_uu`` (Welch, Hann windows of half the record)
+    from ``u`` to each row of ``ys`` (B, N) at the frequencies the input excites (power at least
+    :data:`EXCITED` of its peak); frequencies in cycles per time unit."""
+    fs = 1.0 / float(np.median(np.diff(t)))
+    segment = max(16, u.size // 2)
+    f, puu = sig.welch(u - u.mean(), fs=fs, nperseg=segment)
+    _, puy = sig.csd(u - u.mean(), ys - ys.mean(-1, keepdims=True), fs=fs, nperseg=segment, axis=-1)
+    keep = (puu >= EXCITED * puu.max()) & (f > 0)
+    return f[keep], puy[..., keep] / puu[keep]
+
+
+def render(report, units: Units) -> list[Figure]:
+    """Every figure of ``report`` (a :class:`~.report.GapReport`), in report order."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    figures = []
+    for target, series in report.series.items():
+        gap = next((g for g in report.equations if g.target == target), None)
+        if series.get("where") is not None:
+            figures += _where(target, series["where"], units)
+        residual = residuals(target, series, gap.estimator if gap else {})
+        if residual is not None:
+            figures.append(_correlation_figure(target, *residual, units))
+    seen = set()
+    for series in report.series.values():
+        for label in ("train", "held_out"):
+            run = series.get(f"free_run_{label}")
+            if run is None or label in seen:
+                continue
+            seen.add(label)
+            figures.append(_free_run(label, run, units))
+            inputs = {u: np.asarray(v.cpu()) for u, v in run.get("inputs", {}).items()}
+            inputs = {u: v for u, v in inputs.items() if np.isfinite(v).all() and v.std() > 0}
+            if inputs:
+                figures.append(_frequency(label, run, inputs, units))
+    return figures
+
+
+def _where(target: str, where: dict, units: Units) -> list[Figure]:
+    import matplotlib.pyplot as plt
+
+    t, r, flagged = (np.asarray(where[k].cpu()) for k in ("t", "residual", "flagged"))
+    model = where.get("model", "starting")
+    fig, ax = plt.subplots(figsize=(8, 3))
+    ax.plot(t, r, lw=0.8, color="tab:blue", label=f"residual of the {model} structure fitted where it holds")
+    ax.scatter(t[flagged], r[flagged], s=6, color="tab:red", label="flagged (where it fails)")
+    ax.set_xlabel(units.time), ax.set_ylabel(f"residual of {units.label(target)}")
+    title = f"{target}: where the {model} model misses, over time"
+    out = [_figure(fig, ax, f"{target}_residual_time", title)]
+    values = where["values"]
+    if values:
+        fig, axes = plt.subplots(1, len(values), figsize=(4 * len(values), 3.2), squeeze=False)
+        for ax, (name, v) in zip(axes[0], values.items()):
+            v = np.asarray(v.cpu())
+            ax.scatter(v[~flagged], r[~flagged], s=4, color="tab:blue", label="model holds")
+            ax.scatter(v[flagged], r[flagged], s=4, color="tab:red", label="flagged")
+            ax.set_xlabel(units.label(name)), ax.set_ylabel(f"residual of {units.label(target)}")
+        title = f"{target}: residual of the {model} structure against each signal"
+        out.append(_figure(fig, axes[0, 0], f"{target}_residual_vs_state", title))
+    return out
+
+
+def residuals(target: str, series: dict, estimator: dict):
+    """``(source, residuals per model, inputs, spacing)`` for the whiteness checks on the held-out
+    (else training) record: the free-run error of the equation's state when it is measured (a
+    measured signal, not an estimated derivative), else the one-step residual of the equation.
+    Every ``stride``-th sample is kept (``spacing``: the time between them): the weak form's
+    decimation, for a one-step residual at least the window of the target's derivative estimate
+    (``estimator``: the equation's), which correlates neighbouring rows."""
+    base, _ = split_derivative(target)
+    stride = max(1, int(estimator.get("decimation", 1) or 1))
+    for label in ("held_out", "train"):
+        run = series.get(f"free_run_{label}")
+        if run is None or base not in run["measured"]:
+            continue
+        y, yhat = np.asarray(run["measured"][base].cpu()), np.asarray(run["simulated"][base].cpu())
+        found = {m: (y - yhat[k])[::stride] for k, m in enumerate(MODELS) if m != "start" and np.isfinite(yhat[k]).all()}
+        inputs = {u: np.asarray(v.cpu())[::stride] for u, v in run.get("inputs", {}).items()}
+        source = f"free-run error of {base} ({label.replace('_', '-')} record)"
+        return (source, found, inputs, _spacing(run["t"], stride)) if found else None
+    for label in ("held_out", "train"):
+        step = series.get(f"one_step_{label}")
+        if step is not None:
+            stride = max(stride, int(estimator.get("derivatives", {}).get(base, {}).get("window", 1) or 1))
+            y, yhat = np.asarray(step["y"].cpu()), np.asarray(step["yhat"].cpu())
+            found = {m: (y - yhat[k])[::stride] for k, m in enumerate(MODELS) if m != "start"}
+            inputs = {u: np.asarray(v.cpu())[::stride] for u, v in step.get("inputs", {}).items()}
+            source = f"one-step residual of {target} ({label.replace('_', '-')} record)"
+            return source, found, inputs, _spacing(step["t"], stride)
+    return None
+
+
+def _spacing(t, stride: int) -> float:
+    return stride * float((t[-1] - t[0]) / max(t.shape[0] - 1, 1))
+
+
+def _correlation_figure(target: str, source: str, residuals: dict, inputs: dict, spacing: float,
+                        units: Units) -> Figure:
+    import matplotlib.pyplot as plt
+
+    found = {m: correlations(r, inputs) for m, r in residuals.items()}
+    names = sorted({u for c in found.values() for u in c["ccf"]})
+    fig, axes = plt.subplots(1, 1 + len(names), figsize=(4.2 * (1 + len(names)), 3.2), squeeze=False)
+    first = next(iter(found.values()))
+    for m, c in found.items():
+        axes[0, 0].plot(spacing * np.arange(c["lags"] + 1), c["acf"], marker=".", lw=0.8, color=COLOURS[m], label=NAMES[m])
+        for ax, u in zip(axes[0, 1:], names):
+            ax.plot(spacing * np.arange(-c["lags"], c["lags"] + 1), c["ccf"][u], marker=".", lw=0.8, color=COLOURS[m], label=NAMES[m])
+    for ax in axes[0]:
+        ax.axhspan(-first["band"], first["band"], color="grey", alpha=0.25, label=f"±1.96/√N (N = {first['n']})")
+        ax.axhline(0, color="black", lw=0.5)
+        ax.set_xlabel(f"lag (time, {units.time_source}; a sample every {spacing:.3g})")
+    axes[0, 0].set_ylabel("autocorrelation (dimensionless)"), axes[0, 0].set_title("residual autocorrelation", fontsize=9)
+    for ax, u in zip(axes[0, 1:], names):
+        ax.set_ylabel(f"correlation with {u} (dimensionless)")
+        ax.set_title(f"residual(t + lag) against {units.label(u)}", fontsize=9)
+    return _figure(fig, axes[0, 0], f"{target}_residual_correlation", f"{target}: whiteness of the {source}")
+
+
+def _free_run(label: str, run: dict, units: Units) -> Figure:
+    import matplotlib.pyplot as plt
+
+    states = list(run["measured"])
+    t = np.asarray(run["t"].cpu())
+    fig, axes = plt.subplots(len(states), 1, figsize=(8, 2.6 * len(states)), squeeze=False)
+    for ax, x in zip(axes[:, 0], states):
+        ax.plot(t, np.asarray(run["measured"][x].cpu()), color=COLOURS["measured"], lw=1.2, label=NAMES["measured"])
+        for k, m in enumerate(MODELS):
+            ax.plot(t, np.asarray(run["simulated"][x][k].cpu()), lw=0.9, color=COLOURS[m], label=NAMES[m])
+        ax.set_ylabel(units.label(x))
+    axes[-1, 0].set_xlabel(units.time)
+    record = label.replace("_", "-")
+    return _figure(fig, axes[0, 0], f"free_run_{label}", f"Free runs on the {record} record: measured and simulated")
+
+
+def _frequency(label: str, run: dict, inputs: dict, units: Units) -> Figure:
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
+
+    t = np.asarray(run["t"].cpu())
+    pairs = [(x, u) for x in run["measured"] for u in inputs]
+    fig, axes = plt.subplots(2, len(pairs), figsize=(4.6 * len(pairs), 5.2), squeeze=False, sharex="col")
+    for col, (x, u) in enumerate(pairs):
+        simulated = np.asarray(run["simulated"][x].cpu())
+        rows = np.vstack([np.asarray(run["measured"][x].cpu())[None], simulated])
+        finite = np.isfinite(rows).all(-1)
+        f, h = frequency_response(t, inputs[u], np.where(finite[:, None], rows, 0.0))
+        for k, m in enumerate(("measured",) + MODELS):
+            if finite[k]:
+                style = {"lw": 1.6 if m == "measured" else 0.9, "color": COLOURS[m], "label": NAMES[m], "marker": ".",
+                         "ms": 4}
+                axes[0, col].loglog(f, np.abs(h[k]), **style)
+                axes[1, col].semilogx(f, np.degrees(np.unwrap(np.angle(h[k]))), **style)
+        axes[0, col].set_ylabel(units.ratio(x, u)), axes[0, col].set_title(f"{u} → {x}", fontsize=9)
+        axes[1, col].set_ylabel("phase (degrees)"), axes[1, col].set_xlabel("frequency (cycles per time unit)")
+        axes[1, col].xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        axes[1, col].xaxis.set_major_formatter(FormatStrFormatter("%g"))
+        axes[1, col].xaxis.set_minor_formatter(NullFormatter())
+    title = f"Frequency response on the {label.replace('_', '-')} record: data and free runs (Welch estimate)"
+    return _figure(fig, axes[0, 0], f"frequency_response_{label}", title)
+
+
+def _figure(fig, legend_axis, name: str, title: str) -> Figure:
+    """Title, legend (outside the data where it fits) and PNG bytes of a matplotlib figure."""
+    import matplotlib.pyplot as plt
+
+    fig.suptitle(textwrap.fill(title, int(11 * fig.get_figwidth())), fontsize=10)
+    legend_axis.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=DPI)
+    plt.close(fig)
+    return Figure(f"{name}.png", title, buffer.getvalue())
