@@ -44,9 +44,9 @@ from msam_torch.config.schema import load_config
 from msam_torch.data.loading import load_datasets
 from msam_torch.run.plan import make_trainer
 from msam_torch.run.plan import prepare
-from msam_torch.simulation import groups
+from msam_torch.simulation.ode import groups
 from msam_torch.run.adapt_simulated import prepare_group
-from msam_torch.model.spec import ModelSpec
+from msam_torch.config.to_spec import to_spec
 
 CONFIGS = ROOT / "configs"
 # The target model's adjustment per adjustable component (None: any function, its exponent ~0).
@@ -124,7 +124,7 @@ def run(case: str, level: float, mode: str, rule: str, trials: int, refinement: 
     overrides = [f"data.parametric_error={level}", f"adaptation.refinement_steps={refinement}"] \
         + CASE_OVERRIDES.get(case, []) + RULES[rule] + extra(case)
     config = load_config(CONFIGS / f"{case}.yaml", overrides)
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     sets = parameter_sets(config, spec, 1 if level == 0 else trials)
     begin, cpu = time.perf_counter(), time.process_time()
     labels, exponents, diverged = compute(config, spec, sets)

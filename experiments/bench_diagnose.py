@@ -25,8 +25,8 @@ import torch
 from msam_torch.config.schema import DataConfig, load_config
 from msam_torch.data.loading import build_dataset
 from msam_torch.diagnose import diagnose
-from msam_torch.model.spec import ModelSpec
 from msam_torch.data.systems import SYSTEMS, WITHHELD, measure
+from msam_torch.config.to_spec import to_spec
 
 CASE = "msd_coulomb"
 NOISE = 0.01
@@ -37,7 +37,7 @@ def records(length: float, faster: int, case: str = CASE, noise: float = NOISE) 
     record's duration, sampled ``faster`` times faster, ``noise`` (a share of each measured state's
     standard deviation) added."""
     w = WITHHELD[case]
-    spec = ModelSpec.from_config(load_config({"model": w.model}).model)
+    spec = to_spec(load_config({"model": w.model}).model)
     rng = np.random.default_rng(0)
     out = []
     for name in (w.system, w.held_out):

@@ -26,6 +26,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from msam_torch.config.to_spec import to_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 CANDIDATES = {4: ("harmonic", None), 27: ("sode3", None), 729: ("wide", 3), 4096: ("wide", 4)}
@@ -38,7 +39,6 @@ def problem(candidates: int, samples: int):
     """EquationData, nominal theta (adjustable, fixed) and equation for a candidate count."""
     from msam_torch.engine.candidates import EquationData
     from msam_torch.config.schema import load_config
-    from msam_torch.model.spec import ModelSpec
     from msam_torch.data.systems import SYSTEMS, measure
 
     name, functions = CANDIDATES[candidates]
@@ -51,7 +51,7 @@ def problem(candidates: int, samples: int):
         config = load_config(raw)
     else:
         config = load_config(ROOT / "configs" / f"{name}.yaml")
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     equation = spec.equations[0]
     system = dataclasses.replace(SYSTEMS[config.data.system], samples=samples)
     data = EquationData.build(equation, measure(system))
@@ -66,7 +66,8 @@ def cell(candidates: int, samples: int, repeats: int, sequential: int) -> dict:
     from msam_torch.engine.candidates import Candidate, enumerate_choices
     from msam_torch.run.trials import MAX_ELEMENTS, chunk_size
     from msam_torch.engine.reference import reference_fitness, reference_step
-    from msam_torch.engine.step import State, StepOptions, evaluate, step
+    from msam_torch.engine.step import evaluate, step
+    from msam_torch.engine.values import State, StepOptions
 
     data, theta, theta_fixed, _ = problem(candidates, samples)
     options = StepOptions()
@@ -113,7 +114,7 @@ def long_run(candidates: int, samples: int, steps: int) -> dict:
     from msam_torch.engine.candidates import enumerate_choices
     from msam_torch.run.distributed import ShardedTrainer, init_process_group
     from msam_torch.run.trials import chunk_size
-    from msam_torch.engine.step import StepOptions
+    from msam_torch.engine.values import StepOptions
 
     joined = init_process_group("cpu")
     data, theta, theta_fixed, _ = problem(candidates, samples)

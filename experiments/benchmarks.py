@@ -40,8 +40,9 @@ from msam_torch.run.adapt import adapt
 from msam_torch.config.schema import load_config
 from msam_torch.diagnose import DiagnoseOptions, diagnose
 from msam_torch.diagnose.report.document import exponent_text
-from msam_torch.simulation import EquationModel, simulate_equations as simulate
+from msam_torch.simulation.equations import EquationModel, simulate_equations as simulate
 from msam_torch.model.spec import ModelSpec, derivative_name, split_derivative
+from msam_torch.config.to_spec import to_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = ROOT / "configs"
@@ -276,7 +277,7 @@ def run_case(name: str, baselines: bool, out: list[str]) -> None:
     case = CASES[name]
     naive, hand = CONFIGS / f"{name}_naive.yaml", CONFIGS / f"{name}.yaml"
     config = load_config(naive)
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     output = next(s for s, column in config.data.columns.items() if column == case.y)
     ts = float(config.data.sample_time or np.median(np.diff(datasets.load(case.dataset, case.train)[config.data.time])))
     train, test = record(case, case.train, ts), record(case, case.test, ts)
@@ -310,7 +311,7 @@ def run_case(name: str, baselines: bool, out: list[str]) -> None:
             rmse = result.data["simulation"][0]["free_run_rmse"]["validation"]
             rows[f"{label_run}: adapted [own free run]"] = {first: float(rmse["adapted"][0]) * unit}
             continue
-        run_spec = ModelSpec.from_config(run_config.model)
+        run_spec = to_spec(run_config.model)
         models = equation_models(run_spec, result.equations)
         yhat = protocol_free_run(case, run_spec, models, output, test)
         rows[f"{label_run}: adapted"] = scores(case, parts, yhat)

@@ -10,7 +10,7 @@ import pandas as pd
 
 from experiments.common import (dump_config, load_experiment, markdown_table, model_config, protocol_notes,
                                 run_protocol, save_figure, summary_rows, tensorboard_scalars, write_csv, write_text)
-from msam_torch.model.spec import ModelSpec
+from msam_torch.config.to_spec import to_spec
 
 COLUMNS = ["start_sum_abs_error", "start_rho", "final_sum_abs_error", "final_rho"]
 
@@ -27,7 +27,7 @@ def run_tables(config_paths: list[Path], out: Path, name: str, max_trials: int |
             return 0
         for variant, records in results.items():
             config = model_config(experiment, config_path, variant)
-            spec = ModelSpec.from_config(config.model)
+            spec = to_spec(config.model)
             rows = []
             for position, equation in enumerate(spec.equations):
                 ours = summary_rows(records, experiment.levels, equation, position)

@@ -29,8 +29,8 @@ from experiments.common import main_guard
 from experiments.withheld_effects import datasets
 from msam_torch.config.schema import load_config
 from msam_torch.diagnose import diagnose
-from msam_torch.model.spec import ModelSpec
 from msam_torch.data.systems import WITHHELD
+from msam_torch.config.to_spec import to_spec
 
 # total exponent of each simulated effect on the signal it depends on (msam_torch.data.systems)
 TRUTH = {"msd_coulomb": 0.0, "msd_quadratic_drag": 2.0, "msd_power_damping": 1.5, "msd_hardening": 3.0,
@@ -41,7 +41,7 @@ def trial(args) -> dict:
     case, noise, seed = args
     torch.set_num_threads(1)
     config = load_config({"model": WITHHELD[case].model, "data": {"parametric_error": 0.0, "seed": seed}})
-    train, held_out = datasets(case, noise, seed, ModelSpec.from_config(config.model))
+    train, held_out = datasets(case, noise, seed, to_spec(config.model))
     gap = diagnose(config, data=train, validation=held_out).equations[0]
     row = {"case": case, "noise": noise, "seed": seed, "total": None}
     if gap.naming is None or gap.exponent is None:

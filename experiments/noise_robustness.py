@@ -27,8 +27,8 @@ from experiments.common import main_guard
 from msam_torch.run.adapt import adapt_equation
 from msam_torch.config.schema import load_config
 from msam_torch.data.loading import load_datasets
-from msam_torch.model.spec import ModelSpec
 from msam_torch.data.systems import perturb_parameters
+from msam_torch.config.to_spec import to_spec
 
 THETA_MODES = {
     "fixed": [],
@@ -56,7 +56,7 @@ def noise_table(config_path: str, overrides: list[str], levels: list[float], see
     for level in levels:
         config = load_config(config_path, ["data.derivatives=auto"] + overrides + [f"data.noise={level}",
                                                                                    "data.parametric_error=0"])
-        spec = ModelSpec.from_config(config.model)
+        spec = to_spec(config.model)
         datasets = [load_datasets(config.data.model_copy(update={"seed": s}), spec)[0] for s in range(seeds)]
         signals = {k: torch.stack([d.signals[k] for d in datasets]) for k in datasets[0].signals}
         started = time.perf_counter()
@@ -76,7 +76,7 @@ def error_table(config_path: str, overrides: list[str], levels: list[float], tri
     for mode in modes:
         for level in levels:
             config = load_config(config_path, overrides + THETA_MODES[mode] + ["data.noise=0", "data.parametric_error=0"])
-            spec = ModelSpec.from_config(config.model)
+            spec = to_spec(config.model)
             signals = load_datasets(config.data, spec)[0].signals
             draws = [perturb_parameters(spec.parameters, level, torch.Generator().manual_seed(s)) for s in range(trials)]
             started = time.perf_counter()

@@ -25,9 +25,9 @@ from msam_torch.config.schema import load_config
 from msam_torch.data.loading import load_datasets
 from msam_torch.diagnose.catalogue.entries import effect_entry
 from msam_torch.run.result import EquationResult, adjusted_columns
-from msam_torch.simulation import free_run_models
-from msam_torch.model.spec import ModelSpec
+from msam_torch.simulation.free_run import free_run_models
 from msam_torch.engine.step import lstsq
+from msam_torch.config.to_spec import to_spec
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
@@ -110,7 +110,7 @@ def force_error(equation, entry, signals: dict, input_name: str) -> float:
 def run(case: str) -> None:
     path = CONFIGS / f"{case}.yaml"
     config = load_config(path)
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     begin = time.perf_counter()
     result = adapt(path)
     elapsed = time.perf_counter() - begin

@@ -25,7 +25,7 @@ from msam_torch.config.schema import load_config
 from msam_torch.data.loading import load_datasets
 from msam_torch.engine.fitness import correlation, sum_abs_error
 from msam_torch.run.result import write_atomic
-from msam_torch.model.spec import ModelSpec
+from msam_torch.config.to_spec import to_spec
 
 PAPER = {"original (parameter-tuned)": (4944.38, 0.519, 6361.00, -0.417), "adapted": (678.40, 0.973, 2186.98, 0.759)}
 VARIANTS = {
@@ -73,7 +73,7 @@ def main() -> int:
         return 0
     started = time.perf_counter()
     config = load_config(config_path)
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     equation = spec.equations[0]
     train, validation = load_datasets(config.data, spec, config_path.parent)
     # parameter tuning of the original model: alpha by least squares on the training years (Eq. 5)

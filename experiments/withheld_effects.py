@@ -37,6 +37,7 @@ from msam_torch.diagnose.catalogue.entries import NOT_CATALOGUED, name_effect
 from msam_torch.run.adapt import nominal_parameters
 from msam_torch.model.spec import ModelSpec
 from msam_torch.data.systems import SYSTEMS, WITHHELD, measure
+from msam_torch.config.to_spec import to_spec
 
 NOISE = (0.0, 0.01, 0.05)
 PARAMETRIC = (0.0, 0.25, 0.5)
@@ -130,7 +131,7 @@ def run_trial(args) -> dict:
     torch.set_num_threads(1)
     w = WITHHELD[case]
     config = load_config({"model": w.model, "data": {"parametric_error": error, "seed": seed}})
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     train, held_out = datasets(case, noise, seed, spec)
     started = time.perf_counter()
     report = diagnose(config, data=train, validation=held_out)
@@ -178,7 +179,7 @@ def localisation_trial(args) -> dict:
     torch.set_num_threads(1)
     w = WITHHELD[case]
     config = load_config({"model": w.model, "data": {"parametric_error": 0.25, "seed": seed}})
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     train, held_out = datasets(case, noise, seed, spec, window)
     report = diagnose(config, data=train, validation=held_out, options=DiagnoseOptions(bootstrap=0, free_run=False))
     return {"case": case, "noise": noise, "window": window, **_iou(w.active, report.equations[0].where, train)}
@@ -190,7 +191,7 @@ def timing(repeats: int = 3) -> float:
     case = "msd_coulomb"
     w = WITHHELD[case]
     config = load_config({"model": w.model, "data": {"parametric_error": 0.25, "seed": 0}})
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     train, held_out = datasets(case, 0.01, 0, spec)
     times = []
     for _ in range(repeats + 1):

@@ -1,7 +1,11 @@
 """msam-torch: physics-first model repair with the Model Structure Adaptation Method.
 
-The public names below are imported on first use (PEP 562), so ``import msam_torch`` and
-``msam --help`` do not load torch, pandas or scipy; ``from msam_torch import adapt`` works as usual.
+The public face: :func:`adapt` and :class:`MSAM` (MSAM on every state equation of a config),
+:func:`diagnose` (where the sim-to-real gap lies, which effect causes it, how far it shrinks),
+:func:`load_config`, the options, results and errors. Everything else lives in the subpackages
+(config, model, signals, data, engine, simulation, run, diagnose, cli, zoo) and may change.
+The names are imported on first use (PEP 562), so ``import msam_torch`` and ``msam --help`` do
+not load torch, pandas or scipy; ``from msam_torch import adapt`` works as usual.
 """
 from __future__ import annotations
 
@@ -10,32 +14,38 @@ from typing import TYPE_CHECKING
 
 __version__ = "0.1.0"
 
-_HOME = {  # public name -> the submodule that defines it
+_HOME = {  # public name -> the module that defines it
     "adapt": "run.adapt",
-    "Candidate": "engine.candidates",
-    "EquationData": "engine.candidates",
-    "Config": "config.schema",
+    "MSAM": "run.estimator",
+    "diagnose": "diagnose.stages.pipeline",
     "load_config": "config.schema",
+    "Config": "config.schema",
+    "DiagnoseOptions": "diagnose.options",
+    "StepOptions": "engine.values",
+    "Trainer": "engine.trainer",
+    "RunResult": "run.result",
+    "GapReport": "diagnose.report.gap_report",
+    "StateModel": "run.state_model",
+    "MSAMError": "errors",
     "ConfigError": "errors",
     "DataError": "errors",
-    "MSAMError": "errors",
-    "ModelSpec": "model.spec",
-    "MSAM": "run.estimator",
-    "StepOptions": "engine.step",
-    "Trainer": "engine.trainer",
+    "NoInformation": "errors",
 }
 
 __all__ = [*_HOME, "__version__"]
 
 if TYPE_CHECKING:  # the same names for type checkers and the API docs
-    from msam_torch.run.adapt import adapt
-    from msam_torch.engine.candidates import Candidate, EquationData
     from msam_torch.config.schema import Config, load_config
-    from msam_torch.errors import ConfigError, DataError, MSAMError
-    from msam_torch.run.estimator import MSAM
-    from msam_torch.model.spec import ModelSpec
-    from msam_torch.engine.step import StepOptions
+    from msam_torch.diagnose.options import DiagnoseOptions
+    from msam_torch.diagnose.report.gap_report import GapReport
+    from msam_torch.diagnose.stages.pipeline import diagnose
     from msam_torch.engine.trainer import Trainer
+    from msam_torch.engine.values import StepOptions
+    from msam_torch.errors import ConfigError, DataError, MSAMError, NoInformation
+    from msam_torch.run.adapt import adapt
+    from msam_torch.run.estimator import MSAM
+    from msam_torch.run.result import RunResult
+    from msam_torch.run.state_model import StateModel
 
 
 def __getattr__(name: str):

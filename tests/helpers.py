@@ -5,8 +5,8 @@ from pathlib import Path
 
 from msam_torch.engine.candidates import EquationData
 from msam_torch.config.schema import load_config
-from msam_torch.model.spec import ModelSpec
 from msam_torch.data.systems import SYSTEMS, measure
+from msam_torch.config.to_spec import to_spec
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
@@ -14,7 +14,7 @@ CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 def equation_data(name: str = "harmonic", equation: int = 0, normalize: str = "none"):
     """EquationData, nominal theta (adjustable, fixed) and the spec of a bundled config."""
     config = load_config(CONFIGS / f"{name}.yaml")
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     eq = spec.equations[equation]
     data = EquationData.build(eq, measure(SYSTEMS[config.data.system]), normalize)
     theta = spec.theta(eq)

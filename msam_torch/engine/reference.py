@@ -17,7 +17,7 @@ import torch
 from msam_torch.engine.candidates import Candidate, EquationData
 from msam_torch.engine.fitness import fitness
 from msam_torch.engine.sensitivity import parameter_sensitivities, structural_sensitivities
-from msam_torch.engine.step import StepOptions
+from msam_torch.engine.values import StepOptions
 
 
 @dataclass(frozen=True)

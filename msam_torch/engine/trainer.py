@@ -23,9 +23,10 @@ from typing import Callable
 import torch
 
 from msam_torch.engine.candidates import EquationData, enumerate_choices
-from msam_torch.run.evaluators import Evaluator
+from msam_torch.engine.values import Evaluator
 from msam_torch.engine.fitness import correlation, fitness, sum_abs_error
-from msam_torch.engine.step import State, StepOptions, evaluate, step
+from msam_torch.engine.step import evaluate, step
+from msam_torch.engine.values import State, StepOptions
 
 
 @dataclass(frozen=True)
@@ -60,6 +61,7 @@ class Algebraic:
     """Algebraic evaluation of candidates (paper section 2, Eq. 6-7): the default
     :class:`~msam_torch.run.evaluators.Evaluator`, registered as ``algebraic``."""
 
+    simulates = False
     evaluate = staticmethod(evaluate)
     step = staticmethod(step)
 

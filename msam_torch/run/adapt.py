@@ -18,7 +18,7 @@ from msam_torch.run.result import EquationResult, RunResult
 from msam_torch.run.adapt_simulated import adapt_simulation
 from msam_torch.model.spec import Equation, ModelSpec
 from msam_torch.data.systems import perturb_parameters
-from msam_torch.engine.trainer import Algebraic, Fit, Trainer
+from msam_torch.engine.trainer import Fit, Trainer
 from msam_torch.engine.tuning import Tuned, measure_model, relative_error, tune_adapted, tune_start
 from msam_torch.engine.weak_form import TestFunctions, resolves, weak_data
 
@@ -51,7 +51,7 @@ def adapt(config: Config | dict | str, overrides: list[str] = (),
         config = load_config(config, overrides)
     plan = prepare(config, in_memory=data is not None, measured=records_measured(config, data), **strategies)
     config, spec, dtype, device = plan.config, plan.spec, plan.dtype, plan.device
-    if not isinstance(plan.evaluator, Algebraic):  # judged by simulation
+    if plan.simulates:
         return adapt_simulation(plan, nominal_parameters(config, spec), Path(base_dir), trainer_factory or make_trainer,
                                 on_trainer, data, validation)
     train, held_out = resolve_datasets(config.data, spec, base_dir, dtype, data, validation, plan.derivatives)

@@ -16,13 +16,14 @@ from msam_torch.errors import ConfigError
 from msam_torch.model.notation import format_component, format_equation
 from msam_torch.run.result import EquationResult, RunResult
 from msam_torch.model.spec import Equation
-from msam_torch.engine.trainer import Algebraic, Trainer
-from msam_torch.simulation.evaluator import SimulationEvaluator
+from msam_torch.engine.trainer import Trainer
 from msam_torch.simulation.free_run import free_run, rmse
 from msam_torch.simulation.least_squares import fit_parameters
-from msam_torch.simulation.ode import Parameters, build_model, groups, output_states, state_limits
+from msam_torch.simulation.ode import Parameters, build_model, groups
+from msam_torch.simulation.configured import output_states, state_limits
 from msam_torch.simulation.problem import SimulationData, unpacked
-from msam_torch.simulation.record import Record, load_records
+from msam_torch.simulation.record import Record
+from msam_torch.simulation.configured import load_records
 from msam_torch.simulation.solver import simulate
 
 
@@ -81,11 +82,9 @@ def prepare_group(plan: Plan, group: tuple[Equation, ...], parameters: dict | li
 def simulation_trainer(plan: Plan, factory: Callable[[Plan], Trainer]) -> Trainer:
     """The trainer of ``factory`` judging candidates by simulation."""
     trainer = factory(plan)
-    evaluator = getattr(trainer, "evaluator", None)
-    if not isinstance(trainer, Trainer) or not (evaluator is Algebraic or isinstance(evaluator, (Algebraic, SimulationEvaluator))):
-        raise ConfigError("trainer_factory", "simulation-based evaluation needs a Trainer with the default or the "
-                          f"simulation evaluator, got {type(trainer).__name__} with {evaluator!r}")
-    if not isinstance(evaluator, SimulationEvaluator):
+    if not isinstance(trainer, Trainer):
+        raise ConfigError("trainer_factory", f"simulation-based evaluation needs a Trainer, got {type(trainer).__name__}")
+    if not getattr(trainer.evaluator, "simulates", False):  # the factory's default evaluator
         trainer.evaluator = plan.evaluator
     return trainer
 

@@ -39,11 +39,13 @@ from msam_torch.config.schema import Config, validate
 from msam_torch.data.loading import DataArgument, Dataset, derivative_estimator
 from msam_torch.signals.derivatives import DerivativeEstimator
 from msam_torch.errors import ConfigError
-from msam_torch.run.evaluators import EVALUATORS, Evaluator
+from msam_torch.run.evaluators import EVALUATORS
+from msam_torch.engine.values import Evaluator
 from msam_torch.run.progress import LOGGER
 from msam_torch.model.spec import ModelSpec
-from msam_torch.engine.step import StepOptions
-from msam_torch.engine.trainer import Algebraic, Trainer
+from msam_torch.engine.values import StepOptions
+from msam_torch.engine.trainer import Trainer
+from msam_torch.config.to_spec import to_spec
 
 SECTIONS = {"derivatives": "data", "evaluation": "adaptation", "step_size": "adaptation", "theta": "adaptation"}
 PRESETS = {  # preset -> {(section, key): value} for the keys a config does not give
@@ -71,6 +73,11 @@ class Plan:
     options: StepOptions
     dtype: torch.dtype
     device: torch.device
+
+    @property
+    def simulates(self) -> bool:
+        """The evaluator judges candidates by simulation (its ``simulates``; else algebraically)."""
+        return bool(getattr(self.evaluator, "simulates", False))
 
 
 def updated(config: Config, settings: dict, origin: str) -> Config:
@@ -149,9 +156,9 @@ def prepare(config: Config, in_memory: bool = False, measured: bool = False, **s
     if strategies:
         config = with_strategies(config, **strategies)
     evaluator = EVALUATORS.resolve(config.adaptation.evaluation)
-    config = with_preset(config, measured, simulated=not isinstance(evaluator, Algebraic))
+    config = with_preset(config, measured, simulated=bool(getattr(evaluator, "simulates", False)))
     a = config.adaptation
-    return Plan(config, ModelSpec.from_config(config.model), derivative_estimator(config.data, in_memory),
+    return Plan(config, to_spec(config.model), derivative_estimator(config.data, in_memory),
                 evaluator, step_options(config), getattr(torch, a.dtype), torch.device(a.device))
 
 

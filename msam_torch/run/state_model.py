@@ -18,10 +18,12 @@ from torch import nn
 from msam_torch.config.schema import Config, load_config
 from msam_torch.errors import ConfigError
 from msam_torch.model.expressions import Expression
-from msam_torch.simulation.ode import Parameters, build_model, state_limits
+from msam_torch.simulation.ode import Parameters, build_model
+from msam_torch.simulation.configured import state_limits
 from msam_torch.simulation.record import Record
 from msam_torch.simulation.solver import simulate
 from msam_torch.model.spec import ModelSpec, split_derivative
+from msam_torch.config.to_spec import to_spec
 
 STAGES = ("start", "retuned", "adapted", "adapted_tuned")
 
@@ -117,7 +119,7 @@ class StateModel(nn.Module):
     def from_result(cls, result, stage: str = "adapted", dtype=torch.float64) -> "StateModel":
         """The model of ``stage`` of a :class:`~msam_torch.run.result.RunResult`."""
         config = result.config if isinstance(result.config, Config) else load_config(result.config)
-        spec = ModelSpec.from_config(config.model)
+        spec = to_spec(config.model)
         sim = config.adaptation.simulation
         limits = state_limits(config, build_model(spec, spec.equations).states, dtype)
         return cls(spec, result_stage(spec, result.equations, result.data, stage), dtype, sim.input_hold, limits,
@@ -139,7 +141,7 @@ class StateModel(nn.Module):
             config, models, stage = load_config(report.final["config"]), report.final["models"], report.final["stages"]
         sim = config.adaptation.simulation
         extended = tuple(m.equation for m in models)
-        spec = replace(ModelSpec.from_config(config.model), equations=extended)
+        spec = replace(to_spec(config.model), equations=extended)
         limits = state_limits(config, build_model(spec, extended).states, dtype)
         return cls(spec, report_stage(models, stage), dtype, sim.input_hold, limits, sim.method, sim.substeps)
 

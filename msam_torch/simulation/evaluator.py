@@ -17,7 +17,8 @@ import torch
 
 from msam_torch.engine.fitness import correlation, fitness, sum_abs_error
 from msam_torch.engine.sensitivity import condition_number, structural_sensitivities
-from msam_torch.engine.step import Evaluation, State, StepOptions, StepResult, advance, lstsq, step_size
+from msam_torch.engine.step import advance, lstsq, step_size
+from msam_torch.engine.values import Evaluation, State, StepOptions, StepResult
 from msam_torch.engine.trainer import measures
 from msam_torch.simulation.least_squares import fit_parameters
 from msam_torch.simulation.problem import SimulationData, SimulationSelection, packed, unpacked, usable
@@ -35,6 +36,8 @@ class SimulationEvaluator:
     """Evaluator for :class:`~msam_torch.engine.trainer.Trainer`: candidates judged by their simulation.
     The evaluation of the state a line-search step moved to is kept from its batch, so the
     trainer's evaluation of that state simulates nothing."""
+
+    simulates = True
 
     def __init__(self):
         self._moved: tuple[State, Evaluation] | None = None

@@ -18,7 +18,6 @@ import torch
 import torch.autograd.forward_ad as forward_ad
 
 from msam_torch.engine.candidates import FLOOR, power
-from msam_torch.config.schema import Config
 from msam_torch.errors import ConfigError
 from msam_torch.model.spec import Equation, ModelSpec, derivative_name, split_derivative
 
@@ -251,35 +250,3 @@ def build_model(spec: ModelSpec, group: tuple[Equation, ...]) -> SystemModel:
     bases = {split_derivative(eq.target)[0] for eq in group}
     external = tuple(spec.inputs) + tuple(s for s in spec.states if split_derivative(s)[0] not in bases)
     return SystemModel.build(spec, group, external)
-
-
-def output_states(config: Config, spec: ModelSpec, model: SystemModel) -> tuple[str, ...]:
-    """The simulated states compared with the data (``simulation.output``, else the measured ones)."""
-    sim = config.adaptation.simulation
-    for i, name in enumerate(sim.output):
-        if name not in spec.states:
-            raise ConfigError(f"adaptation.simulation.output[{i}]", f"{name!r} is not a state of the model")
-    chosen = tuple(o for o in sim.output if o in model.states)
-    if not sim.output:
-        chosen = tuple(s for s in model.states if s in config.data.columns)
-    if not chosen:
-        raise ConfigError("adaptation.simulation.output", f"name the measured states among {list(model.states)} "
-                          "that the simulation is compared with")
-    return chosen
-
-
-def state_limits(config: Config, states: tuple[str, ...], dtype=torch.float64, device=None) -> torch.Tensor | None:
-    """The range of every simulated state (2, S) from ``simulation.saturation`` (None: unbounded);
-    ranges of states another group simulates are ignored."""
-    saturation = config.adaptation.simulation.saturation
-    if not saturation:
-        return None
-    for name, (low, high) in saturation.items():
-        key = f"adaptation.simulation.saturation.{name}"
-        if name not in config.model.states:
-            raise ConfigError(key, f"{name!r} is not a state of the model")
-        if low is not None and high is not None and not low < high:
-            raise ConfigError(key, f"the range [{low}, {high}] is empty: give [low, high] with low < high")
-    bound = lambda name, k, default: default if saturation.get(name, (None, None))[k] is None else float(saturation[name][k])
-    return torch.tensor([[bound(x, 0, -torch.inf) for x in states], [bound(x, 1, torch.inf) for x in states]],
-                        dtype=dtype, device=device)

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import torch
 
-from msam_torch.engine.step import State
+from msam_torch.engine.values import State
 from msam_torch.simulation.ode import Parameters, SystemModel
 from msam_torch.simulation.record import Record
 from msam_torch.simulation.solver import simulate

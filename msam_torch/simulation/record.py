@@ -1,27 +1,12 @@
 """Measured records for simulation: time, external signals (inputs, states read from the data)
-and the measured outputs on a uniform grid, built by the project's one loader
-(:func:`msam_torch.data.loading.load_datasets`) from a config's file or system, a path, an in-memory table
-(pandas DataFrame, mapping of arrays) or a :class:`~msam_torch.data.loading.Dataset`.
-
-Measured signals enter the record as measured (no smoothing); a simulated state that is not
-measured starts from ``simulation.initial_guess``, else from the configured derivative estimator
-applied to a measured lower derivative (``x_dot`` from ``x``), else from 0.
-"""
+and the measured outputs on a uniform grid (:class:`Record`); built from a config's data by
+:func:`msam_torch.simulation.configured.load_records`."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
-import numpy as np
 import torch
 
-from msam_torch.config.schema import Config
-from msam_torch.data.loading import Dataset, Table, resolve_datasets
-from msam_torch.signals.derivatives import DerivativeEstimator
-from msam_torch.errors import DataError
-from msam_torch.data.information import check_simulation_record
-from msam_torch.model.spec import ModelSpec, split_derivative
-from msam_torch.simulation.ode import SystemModel
 
 
 @dataclass(frozen=True)
@@ -73,52 +58,3 @@ class Record:
             w = (position - k).clamp(0.0, 1.0).unsqueeze(-1)
             values = self.external[..., k, :] * (1 - w) + self.external[..., k + 1, :] * w
         return values if self.held is None or not bool(self.held.any()) else torch.where(self.held, zoh(), values)
-
-
-@dataclass(frozen=True)
-class RecordSpec(ModelSpec):
-    """The signals a record holds, as a :class:`ModelSpec` for the loader: ``inputs`` are taken
-    as measured, ``states`` are estimated from a measured lower derivative."""
-
-    names: frozenset = frozenset()
-
-    @property
-    def signals(self) -> frozenset[str]:
-        return self.names
-
-
-def load_records(config: Config, spec: ModelSpec, model: SystemModel, outputs: tuple[str, ...], base_dir: Path,
-                 dtype=torch.float64, data: Table | Dataset | str | Path | None = None,
-                 validation: Table | Dataset | str | Path | None = None,
-                 estimator: DerivativeEstimator | None = None) -> tuple[Record, Record | None]:
-    """Training and (if configured or given) validation records for ``model``; ``data`` and
-    ``validation`` replace the config's data source as in :func:`msam_torch.data.loading.resolve_datasets`,
-    states that start from a measured lower derivative estimated with ``estimator``."""
-    sim = config.adaptation.simulation
-    measured = set(config.data.columns) if config.data.system is None and not isinstance(data, Dataset) else set()
-    raw = tuple(dict.fromkeys(list(model.external) + list(outputs) + sorted(measured & spec.signals)))
-    estimated = tuple(s for s in model.states if s not in raw and s not in sim.initial_guess and any(
-        split_derivative(m)[0] == split_derivative(s)[0] and split_derivative(m)[1] < split_derivative(s)[1]
-        for m in raw))
-    record_spec = RecordSpec(estimated, raw, {}, (), frozenset(raw + estimated + ("t",)))
-    train, held_out = resolve_datasets(config.data, record_spec, base_dir, dtype, data, validation, estimator)
-    record = lambda dataset: _record(dataset, model, outputs, raw, sim.initial_guess, sim.input_hold, dtype)
-    return record(train), None if held_out is None else record(held_out)
-
-
-def _record(dataset: Dataset, model: SystemModel, outputs, raw, initial_guess, hold: str, dtype) -> Record:
-    signals = dataset.signals
-    missing = [n for n in raw if n not in signals]
-    if missing:
-        raise DataError(f"{dataset.info.get('source', 'data')}: simulation needs the signals {missing} "
-                        f"(it has {sorted(set(signals) - {'t'})})")
-    check_simulation_record(model.equations, outputs, model.external, signals, dataset.info.get("source", "data"))
-    as_tensor = lambda v: torch.as_tensor(np.asarray(v, dtype=float).copy(), dtype=dtype)
-    first = lambda s: float(signals[s][0]) if s in raw or (s in signals and s not in initial_guess) \
-        else float(initial_guess.get(s, 0.0))
-    guess = [first(s) for s in model.states]
-    t = as_tensor(signals["t"])
-    external = torch.stack([as_tensor(signals[n]) for n in model.external], -1) if model.external \
-        else torch.zeros(t.shape[0], 0, dtype=dtype)
-    return Record.build(t, external, torch.stack([as_tensor(signals[o]) for o in outputs]),
-                        torch.tensor(guess, dtype=dtype), hold)

@@ -8,10 +8,10 @@ from msam_torch.engine.candidates import EquationData
 from msam_torch.config.schema import load_config
 from msam_torch.signals.derivatives import METHODS, choose_window, cutoff_frequency, estimate, noise_level
 from msam_torch.errors import ConfigError, DataError
-from msam_torch.model.spec import ModelSpec
 from msam_torch.data.systems import SYSTEMS, measure
 from msam_torch.engine.tuning import tune_adapted, tune_start
 from tests.helpers import measured_case, simulated
+from msam_torch.config.to_spec import to_spec
 
 QUICK = ["adaptation.round_robin_steps=3", "adaptation.refinement_steps=2"]
 
@@ -127,7 +127,7 @@ def test_ranges_by_time_and_index_and_held_out_measures(tmp_path):
 
 def test_theta_re_estimation_recovers_the_true_theta_and_reveals_the_nominal_error():
     config = load_config("configs/harmonic.yaml")
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     eq = spec.equations[0]
     data = EquationData.build(eq, measure(SYSTEMS["harmonic"]))
     true = spec.theta(eq)
@@ -162,7 +162,6 @@ def test_parquet_files_load_like_csv(tmp_path):
 
     from msam_torch.config.schema import load_config
     from msam_torch.data.loading import load_datasets
-    from msam_torch.model.spec import ModelSpec
 
     t = np.linspace(0.0, 2.0, 201)
     frame = pd.DataFrame({"time": t, "pos": np.sin(3 * t), "force": np.cos(t)})
@@ -176,7 +175,7 @@ def test_parquet_files_load_like_csv(tmp_path):
     for name in ("r.csv", "r.parquet"):
         config = load_config({"model": model, "data": {"file": name, "time": "time", "derivatives": "savgol",
                                                        "columns": {"x": "pos", "u": "force"}}})
-        train, _ = load_datasets(config.data, ModelSpec.from_config(config.model), tmp_path)
+        train, _ = load_datasets(config.data, to_spec(config.model), tmp_path)
         loaded.append(train.signals)
     assert set(loaded[0]) == set(loaded[1]) >= {"x", "x_ddot", "u"}
     for name in loaded[0]:

@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 from msam_torch.config.schema import load_config
 from msam_torch.errors import ConfigError, MSAMError
 from msam_torch.model.expressions import FUNCTIONS, parse
-from msam_torch.model.spec import ModelSpec
 from tests.helpers import CONFIGS
+from msam_torch.config.to_spec import to_spec
 
 NAMES = ("c", "m", "x")
 SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -58,7 +58,7 @@ def check_override(item: str) -> None:
     """An override on the bundled harmonic config loads (and its theta evaluates) or raises MSAMError."""
     try:
         config = load_config(CONFIGS / "harmonic.yaml", [item])
-        spec = ModelSpec.from_config(config.model)
+        spec = to_spec(config.model)
         for equation in spec.equations:
             assert torch.isfinite(spec.theta(equation)).all()
     except MSAMError as exc:

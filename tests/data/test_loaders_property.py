@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 from msam_torch.config.schema import load_config
 from msam_torch.data.loading import load_datasets
 from msam_torch.errors import MSAMError
-from msam_torch.model.spec import ModelSpec
 from tests.helpers import measured_case
+from msam_torch.config.to_spec import to_spec
 
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 CONFIG, FRAME = measured_case("harmonic", every=20)
@@ -44,7 +44,7 @@ def test_config_loader_on_random_text(tmp_path, text):
 @SETTINGS
 @given(tree=trees)
 def test_config_loader_on_random_structures(tree):
-    expect_msam_error(lambda: ModelSpec.from_config(load_config({"model": tree} if not isinstance(tree, dict) else tree).model))
+    expect_msam_error(lambda: to_spec(load_config({"model": tree} if not isinstance(tree, dict) else tree).model))
 
 
 @SETTINGS
@@ -53,7 +53,7 @@ def test_config_loader_on_random_structures(tree):
 def test_overrides_on_a_valid_config(path, value):
     def load():
         config = load_config(CONFIG, [".".join(path) + "=" + value])
-        ModelSpec.from_config(config.model)
+        to_spec(config.model)
 
     expect_msam_error(load)
 
@@ -98,7 +98,7 @@ def test_data_loaders_on_corrupted_tables(tmp_path, data, kind, as_csv, window, 
     frame = corrupt(FRAME[["t", "x", "u"]], data, kind)
     config = load_config({**CONFIG, "data": {"file": "data.csv", "time": "t", "columns": {"x": "x", "u": "u"},
                                              "derivatives": derivatives, "window": window}})
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
 
     def load():
         if as_csv:
@@ -116,4 +116,4 @@ def test_data_loader_on_random_bytes(tmp_path, content, suffix):
     (tmp_path / f"data{suffix}").write_bytes(content)
     config = load_config({**CONFIG, "data": {"file": f"data{suffix}", "time": "t", "columns": {"x": "x", "u": "u"},
                                              "derivatives": "savgol"}})
-    expect_msam_error(lambda: load_datasets(config.data, ModelSpec.from_config(config.model), tmp_path))
+    expect_msam_error(lambda: load_datasets(config.data, to_spec(config.model), tmp_path))

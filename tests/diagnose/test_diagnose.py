@@ -14,9 +14,9 @@ from msam_torch.data.loading import build_dataset
 from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
 from msam_torch.diagnose.catalogue.entries import NOT_CATALOGUED, name_effect
 from msam_torch.engine.weak_form import TestFunctions as Bumps
-from msam_torch.simulation import EquationModel, simulate_equations as simulate
-from msam_torch.model.spec import ModelSpec
+from msam_torch.simulation.equations import EquationModel, simulate_equations as simulate
 from msam_torch.data.systems import SYSTEMS, WITHHELD, measure as simulate_true
+from msam_torch.config.to_spec import to_spec
 
 FAST = DiagnoseOptions(bootstrap=6, steps=20)
 
@@ -33,7 +33,7 @@ def true_signals(name):
 def case_data(case, noise=0.0, scale=1.0):
     """Training and held-out datasets of a withheld-effect case on a short record (x in ``1/scale`` units)."""
     w = WITHHELD[case]
-    spec = ModelSpec.from_config(load_config({"model": w.model}).model)
+    spec = to_spec(load_config({"model": w.model}).model)
     rng = np.random.default_rng(0)
     out = []
     for name in (w.system, w.held_out):
@@ -58,7 +58,7 @@ def test_weak_form_integrates_by_parts():
 
 
 def test_catalogue_names_by_role_and_exponent():
-    spec = ModelSpec.from_config(load_config({"model": WITHHELD["msd_coulomb"].model}).model)
+    spec = to_spec(load_config({"model": WITHHELD["msd_coulomb"].model}).model)
     eq = spec.equations[0]  # components x_dot, x, u; adjustments abs(x_dot), abs(x)
     assert name_effect(eq, 0, 0, -0.97, -0.5, -0.5) == "Coulomb friction"
     assert name_effect(eq, 0, 0, 1.1, -0.5, -0.5) == "quadratic drag"
@@ -74,7 +74,7 @@ def test_catalogue_names_by_role_and_exponent():
 
 def test_simulate_reproduces_the_true_linear_system():
     truth = {k: torch.as_tensor(v) for k, v in true_signals("msd_linear").items()}
-    spec = ModelSpec.from_config(load_config({"model": WITHHELD["msd_linear"].model}).model)
+    spec = to_spec(load_config({"model": WITHHELD["msd_linear"].model}).model)
     eq = spec.equations[0]
     model = EquationModel.starting(eq, spec.theta(eq))
     out = simulate(spec, [model], truth["t"], {"u": truth["u"]}, {"x": 0.0, "x_dot": 0.0})
@@ -84,7 +84,7 @@ def test_simulate_reproduces_the_true_linear_system():
 
 def test_simulate_marks_a_diverging_member_without_spoiling_the_batch():
     truth = {k: torch.as_tensor(v) for k, v in true_signals("msd_linear").items()}
-    spec = ModelSpec.from_config(load_config({"model": WITHHELD["msd_linear"].model}).model)
+    spec = to_spec(load_config({"model": WITHHELD["msd_linear"].model}).model)
     eq = spec.equations[0]
     theta = torch.stack([spec.theta(eq), torch.tensor([3.0, 4.0, 1.0], dtype=torch.float64)])  # unstable damping
     out = simulate(spec, [EquationModel.starting(eq, theta)], truth["t"], {"u": truth["u"]}, {"x": 0.0, "x_dot": 0.0},

@@ -12,10 +12,10 @@ from msam_torch.config.schema import load_config
 from msam_torch.data.loading import resolve_datasets
 from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
 from msam_torch.errors import DataError, MSAMError
-from msam_torch.model.spec import ModelSpec
 from msam_torch.data.systems import WITHHELD
 
 from tests.diagnose.test_diagnose import true_signals
+from msam_torch.config.to_spec import to_spec
 
 OPTIONS = DiagnoseOptions(bootstrap=0, steps=20, free_run=False)
 QUICK = ["adaptation.round_robin_steps=3", "adaptation.refinement_steps=2"]
@@ -34,7 +34,7 @@ def test_diagnose_takes_frames_mappings_files_and_datasets_alike(tmp_path):
     train.to_csv(tmp_path / "train.csv", index=False)
     held.to_parquet(tmp_path / "held.parquet")
     as_mapping = lambda f: {c: torch.tensor(f[c].to_numpy()) for c in f}
-    spec = ModelSpec.from_config(load_config(CONFIG).model)
+    spec = to_spec(load_config(CONFIG).model)
     datasets = resolve_datasets(load_config(CONFIG).data, spec, data=train, validation=held)
     reports = [diagnose(CONFIG, data=a, validation=b, options=OPTIONS) for a, b in (
         (train, held), (as_mapping(train), as_mapping(held)), (tmp_path / "train.csv", str(tmp_path / "held.parquet")),
@@ -52,7 +52,7 @@ def test_diagnose_takes_frames_mappings_files_and_datasets_alike(tmp_path):
 def test_adapt_takes_a_frame_a_file_and_a_dataset_like_diagnose(tmp_path):
     train, held = frames()
     train.to_csv(tmp_path / "train.csv", index=False)
-    spec = ModelSpec.from_config(load_config(CONFIG).model)
+    spec = to_spec(load_config(CONFIG).model)
     dataset, _ = resolve_datasets(load_config(CONFIG).data, spec, data=train)
     results = [adapt(CONFIG, QUICK, data=d, validation=held) for d in (train, tmp_path / "train.csv")]
     results.append(adapt(CONFIG, QUICK, data=dataset))
@@ -67,7 +67,7 @@ def test_a_wrong_data_argument_is_an_error_naming_it():
         diagnose(CONFIG, data=train.to_numpy(), options=OPTIONS)
     with pytest.raises(DataError, match="^validation: expected .* got list"):
         adapt(CONFIG, QUICK, data=train, validation=[1.0, 2.0])
-    spec = ModelSpec.from_config(load_config(CONFIG).model)
+    spec = to_spec(load_config(CONFIG).model)
     dataset, _ = resolve_datasets(load_config(CONFIG).data, spec, data=train)
     with pytest.raises(MSAMError, match="^validation: with data given as a Dataset"):
         diagnose(CONFIG, data=dataset, validation=held, options=OPTIONS)

@@ -22,6 +22,7 @@ from msam_torch.diagnose.compare.verdict import demoted, equation_verdict, free_
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "experiments"))
 from bench_diagnose import records  # noqa: E402  (the benchmark's records: one source of them)
+from msam_torch.config.to_spec import to_spec
 
 QUICK = DiagnoseOptions(bootstrap=0, steps=20, free_run=False, max_effects=1)  # the first effect: estimation, not the loop
 
@@ -281,12 +282,11 @@ def test_cross_fits_predict_every_fitted_row_once_from_rows_apart_from_it():
     """Blocked k-fold cross-fitting of the training rows: each fitted row is in one block, and the
     fit that predicts a block leaves out every row within the independence distance of it."""
     from msam_torch.diagnose.stages.rows import WeakForm
-    from msam_torch.model.spec import ModelSpec
     from msam_torch.config.schema import load_config
 
     t = torch.linspace(0, 40, 2001, dtype=torch.float64)
     x = torch.sin(t) + 0.3 * torch.sin(2.3 * t)
-    spec = ModelSpec.from_config(load_config({"model": {"states": ["x"], "parameters": {"a": -1.0},
+    spec = to_spec(load_config({"model": {"states": ["x"], "parameters": {"a": -1.0},
         "equations": [{"target": "x_dot", "components": [{"term": "x", "theta": "a"}], "adjustments": ["abs(x)"]}]},
         "data": {"time": "t", "columns": {"x": "x"}}}).model)
     signals = {"t": t, "x": x, "x_dot": torch.gradient(x, spacing=(t,))[0]}

@@ -18,8 +18,8 @@ from msam_torch.diagnose.catalogue.entries import bundled
 from msam_torch.diagnose.effects.hypotheses import Fitted
 from msam_torch.diagnose.catalogue.naming import Naming, half_width, repeated
 from msam_torch.errors import ConfigError
-from msam_torch.model.spec import ModelSpec
 from msam_torch.zoo.score import parse_equation
+from msam_torch.config.to_spec import to_spec
 
 OPTIONS = DiagnoseOptions(bootstrap=8, free_run=False)
 
@@ -157,7 +157,7 @@ def test_the_state_an_equation_acts_on_has_its_quantity_even_where_no_term_reads
                                                                  {"term": "d_dot", "theta": 30.0},
                                                                  {"term": "zu - zr", "theta": -4800.0, "adjustable": False}],
                             "adjustments": ["abs(d)"]}]}
-    spec = ModelSpec.from_config(load_config({"model": model, "data": {"time": "t"}}).model)
+    spec = to_spec(load_config({"model": model, "data": {"time": "t"}}).model)
     equation = spec.equations[1]
     roles = catalogue.Roles.of_equation(spec, equation)
     assert (roles.of("zu_dot"), roles.of("zu_ddot"), roles.of("d_dot")) == ("velocity", "acceleration", "velocity")
@@ -177,7 +177,7 @@ def test_temperatures_in_celsius_get_no_radiation_name_and_a_note_to_give_kelvin
     gap = run(model, frames, declared)
     assert gap.significant and gap.effect != "radiation", gap.naming
     assert "T is in degC, whose zero is not absolute" in gap.naming["text"] and "kelvin" in gap.naming["text"]
-    spec = ModelSpec.from_config(load_config({"model": {**model, "quantities": declared}, "data": {"time": "t"}}).model)
+    spec = to_spec(load_config({"model": {**model, "quantities": declared}, "data": {"time": "t"}}).model)
     roles = catalogue.Roles.of_equation(spec, spec.equations[0])
     assert (roles.offset_scale("T"), roles.offset_scale("u")) == ("degC", None)
 
@@ -227,7 +227,7 @@ def test_a_difference_of_two_temperatures_reads_as_a_temperature_difference():
     gap = run(model, frames, declared)
     assert gap.verdict_kind is Verdict.EXPLAINED and gap.effect == "natural convection", gap.naming
     assert gap.naming["total_exponent"] == pytest.approx(1.25, abs=0.05) and gap.naming["on"] == "T - Ta"
-    spec = ModelSpec.from_config(load_config({"model": {**model, "quantities": declared}, "data": {"time": "t"}}).model)
+    spec = to_spec(load_config({"model": {**model, "quantities": declared}, "data": {"time": "t"}}).model)
     roles = catalogue.Roles.of_equation(spec, spec.equations[0])
     expression = lambda text: ast.parse(text, mode="eval").body
     assert roles.of_expression(expression("T - Ta")) == "temperature_difference"
@@ -275,7 +275,7 @@ def test_a_config_effect_of_a_bundled_law_gets_the_config_s_name_not_a_tie():
     own = {"name": "cart drag", "domain": "mechanical", "acts_on": "velocity", "term": "velocity",
            "depends_on": "velocity", "form": "additive", "exponent": 2, "sign": drag.sign,
            "description": "0.5 rho Cd A v|v|", "reference": "test"}
-    spec = ModelSpec.from_config(load_config({"model": {**MODEL, "effects": [own]}, "data": {"time": "t"}}).model)
+    spec = to_spec(load_config({"model": {**MODEL, "effects": [own]}, "data": {"time": "t"}}).model)
     same_sign = drag.sign in ("any", "same")
     on = lambda quantity: catalogue.Reading(quantity, quantity, quantity, "v", 1.0)
     assert [e.name for e in catalogue.admitted(catalogue.entries(spec), on("velocity")) if e.exponent == 2] == ["cart drag"]
@@ -296,7 +296,7 @@ MODEL = {"states": ["x"], "equations": [{"target": "x_dot", "components": [{"ter
 ])
 def test_config_errors_name_the_key(extra, key):
     with pytest.raises(ConfigError) as error:
-        ModelSpec.from_config(load_config({"model": {**MODEL, **extra}}).model)
+        to_spec(load_config({"model": {**MODEL, **extra}}).model)
     assert str(error.value).startswith(key + ":") or str(error.value).startswith(key + " "), str(error.value)
 
 
@@ -395,7 +395,7 @@ def test_pinned_rivals_are_the_single_valued_entries_a_hypothesis_admits():
     model, frames, declare = drive()
     config = load_config({"model": {**model, "quantities": declare},
                           "data": {"time": "t", "columns": {"w": "w", "i": "i"}}})
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     hypotheses = enumerate_hypotheses(spec.equations[0])
     pins = [(hypotheses[p.hypothesis].kind, p.gamma, p.entry.name) for p in pinned(spec, spec.equations[0], hypotheses)]
     assert sorted(pins) == [("additive", -1.0, "Coulomb friction"), ("additive", 1.0, "quadratic drag"),
@@ -442,7 +442,7 @@ def test_a_law_held_too_loosely_that_predicts_better_makes_the_verdict_inconclus
              "equations": [{"target": "T_dot", "components": [{"term": "T", "theta": "-h"},
                                                               {"term": "Ta", "theta": "h", "adjustable": False}],
                             "adjustments": ["abs(T)"]}]}
-    equation = ModelSpec.from_config(load_config({"model": model, "data": {"time": "t"}}).model).equations[0]
+    equation = to_spec(load_config({"model": model, "data": {"time": "t"}}).model).equations[0]
     hypotheses = [Hypothesis("retuned"), Hypothesis("multiplicative", 0, 0), Hypothesis("exchange", 0, 0, 1.5, ("Ta",))]
     details = [None, {"total_exponent": 1.24, "half_width": 0.2, "on": "T", "consistent": []},
                {"total_exponent": 3.48, "half_width": 1.04, "on": "T", "consistent": ["radiation"]}]
@@ -478,7 +478,7 @@ def test_an_exponent_most_trials_could_not_refit_is_neither_an_effect_nor_a_loos
                                                               {"term": "Ta", "theta": "h", "adjustable": False}],
                             "adjustments": ["abs(T)"]}],
              "quantities": {"T": "temperature", "Ta": "temperature"}}
-    spec = ModelSpec.from_config(load_config({"model": model, "data": {"time": "t"}}).model)
+    spec = to_spec(load_config({"model": model, "data": {"time": "t"}}).model)
     hypotheses = [Hypothesis("retuned"), Hypothesis("exchange", 0, 0, 1.5, ("Ta",))]
     gamma = torch.zeros(1, 2, 4, dtype=torch.float64)
     gamma[0, 1, 1] = 2.5  # the copy's slot: T|T|^2.5, total exponent 3.5 on T

@@ -8,7 +8,7 @@ from msam_torch.data import datasets
 from msam_torch.run.adapt import adapt
 from msam_torch.config.schema import AdaptationConfig, SimulationConfig, load_config
 from msam_torch.diagnose import NOT_CATALOGUED, DiagnoseOptions, diagnose
-from msam_torch.model.spec import ModelSpec
+from msam_torch.config.to_spec import to_spec
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 NAIVE = ["silverbox_naive", "emps_naive", "cascaded_tanks_naive"]
@@ -40,7 +40,7 @@ def test_estimation_and_validation_records_are_complete(name, records, rows):
 @pytest.mark.parametrize("name", NAIVE)
 def test_naive_configs_hold_only_the_starting_physics(name):
     config = load_config(CONFIGS / f"{name}.yaml")
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     for equation in config.model.equations:
         terms = [c.term for c in equation.components]
         assert len(set(terms)) == len(terms)  # no component split

@@ -18,11 +18,11 @@ from msam_torch.diagnose.effects.adapted import adapted_components
 from msam_torch.diagnose.effects.hypotheses import encode, enumerate_hypotheses, extended_equation, offset_testable
 from msam_torch.diagnose.effects.multi import in_turn
 from msam_torch.errors import ConfigError
-from msam_torch.simulation import EquationModel
-from msam_torch.model.spec import ModelSpec
+from msam_torch.simulation.equations import EquationModel
 from msam_torch.data.systems import WITHHELD as SUITE, System, measure, multisine
 from msam_torch.zoo import SHARE_FLOOR, generate_pair, score
 from msam_torch.zoo.effects import separable
+from msam_torch.config.to_spec import to_spec
 
 MODEL = SUITE["msd_coulomb"].model  # the withheld-effect suite's mass-spring-damper starting model
 EXCITATIONS = (multisine((0.4, 0.7, 1.1, 1.5, 1.9, 2.4, 3.0, 3.7), 2.5), multisine((0.5, 0.9, 1.3, 1.7, 2.2, 2.8), 2.2))
@@ -47,7 +47,7 @@ def _rhs(force):
 
 
 def datasets(case: str, noise: float = 0.01):
-    spec = ModelSpec.from_config(load_config({"model": MODEL}).model)
+    spec = to_spec(load_config({"model": MODEL}).model)
     rng = np.random.default_rng(0)
     out = []
     for u in EXCITATIONS:
@@ -221,7 +221,7 @@ def test_report_files_list_the_effects(tmp_path):
 def test_an_offset_is_tried_only_where_every_signal_takes_both_signs():
     """A constant is a law of a one-signed signal (``s|s|^-1``), so the offset is not tried there,
     nor in an equation that holds a constant already."""
-    equation = ModelSpec.from_config(load_config({"model": MODEL}).model).equations[0]
+    equation = to_spec(load_config({"model": MODEL}).model).equations[0]
     t = torch.linspace(0, 20, 2001, dtype=torch.float64)
     signals = {"x": torch.sin(t), "x_dot": torch.cos(t), "u": torch.sin(0.7 * t)}
     assert offset_testable(equation, signals)
@@ -231,11 +231,11 @@ def test_an_offset_is_tried_only_where_every_signal_takes_both_signs():
     assert offset_testable(equation, {**signals, "x": torch.sin(t) + 0.9})  # 13 % below 0
     constant = load_config({"model": {**MODEL, "equations": [{**MODEL["equations"][0], "components": [
         *MODEL["equations"][0]["components"], {"term": "1", "theta": 0.1}]}]}})
-    assert not offset_testable(ModelSpec.from_config(constant.model).equations[0], signals)
+    assert not offset_testable(to_spec(constant.model).equations[0], signals)
 
 
 def test_adapted_structure_as_starting_model_computes_the_adapted_rate():
-    spec = ModelSpec.from_config(load_config({"model": MODEL}).model)
+    spec = to_spec(load_config({"model": MODEL}).model)
     equation = spec.equations[0]
     extended = extended_equation(equation)
     hypotheses = enumerate_hypotheses(equation, offset=True)
@@ -256,7 +256,7 @@ def test_adapted_structure_as_starting_model_computes_the_adapted_rate():
         model = EquationModel(extended, choice, g, theta, torch.ones(3, 1, dtype=torch.float64), scale)
         components = adapted_components(equation, model)
         config = load_config({"model": {**MODEL, "equations": [{**MODEL["equations"][0], "components": components}]}})
-        written = ModelSpec.from_config(config.model).equations[0]
+        written = to_spec(config.model).equations[0]
         t = torch.linspace(0, 6, 301, dtype=torch.float64)
         values = {"x": torch.sin(t), "x_dot": torch.cos(1.3 * t), "u": torch.sin(0.7 * t)}
         rate = sum(float(c.theta({})) * c.term(values) for c in written.components)

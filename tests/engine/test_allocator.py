@@ -7,7 +7,8 @@ import torch
 
 from msam_torch.engine.allocator import keep_freed_memory
 from msam_torch.engine.candidates import enumerate_choices
-from msam_torch.engine.step import State, StepOptions, evaluate, step
+from msam_torch.engine.step import evaluate, step
+from msam_torch.engine.values import State, StepOptions
 from tests.helpers import equation_data
 
 pytestmark = pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="mallopt is glibc's")

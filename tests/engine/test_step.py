@@ -2,7 +2,8 @@ import torch
 
 from msam_torch.run.adapt import adapt
 from msam_torch.engine.candidates import EquationData
-from msam_torch.engine.step import State, StepOptions, evaluate, lstsq, step
+from msam_torch.engine.step import evaluate, lstsq, step
+from msam_torch.engine.values import State, StepOptions
 from msam_torch.engine.trainer import Trainer
 from tests.helpers import CONFIGS, equation_data
 

@@ -14,7 +14,7 @@ from msam_torch.signals.derivatives import ESTIMATORS, Auto, Exact, SavitzkyGola
 from msam_torch.errors import ConfigError
 from msam_torch.run.evaluators import EVALUATORS
 from msam_torch.run.plan import make_trainer, prepare
-from msam_torch.engine.step import StepOptions
+from msam_torch.engine.values import StepOptions
 from msam_torch.engine.step_rules import STEP_SIZES, Eq20, LineSearch, ThetaRule
 from msam_torch.engine.trainer import Algebraic
 from tests.helpers import CONFIGS, equation_data, measured_case, simulated
@@ -139,3 +139,35 @@ def test_simulation_evaluation_runs_with_the_default_auto_estimator(tmp_path):
     auto = adapt(config, quick, base_dir=tmp_path)
     assert auto.config["data"]["derivatives"] == "auto"
     assert outcome(auto) == outcome(adapt(config, quick + ["data.derivatives=savgol"], base_dir=tmp_path))
+
+
+class Counting:
+    """A user's own evaluator: the algebraic one, counting the batches it evaluates and steps."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def evaluate(self, selection, state, options):
+        self.calls += 1
+        return Algebraic.evaluate(selection, state, options)
+
+    def step(self, selection, state, current, options, conditions=True):
+        self.calls += 1
+        return Algebraic.step(selection, state, current, options, conditions)
+
+    def starting_measures(self, data, theta, theta_fixed):
+        return Algebraic.starting_measures(data, theta, theta_fixed)
+
+
+def test_a_user_evaluator_passed_to_adapt_is_used():
+    """An evaluator object that does not say it simulates takes the algebraic path, and every
+    evaluation and step of the run goes through it: the same result as the built-in one."""
+    config, frame = measured_case("harmonic", every=4)
+    config["data"] = {"time": "t", "columns": {"x": "x", "u": "u"}, "derivatives": "savgol"}
+    own = Counting()
+    given = adapt(config, QUICK, data=frame[["t", "x", "u"]], evaluation=own)
+    built_in = adapt(config, QUICK, data=frame[["t", "x", "u"]])
+    assert own.calls >= 2 * len(given.equations)
+    assert outcome(given) == outcome(built_in)
+    assert not prepare(load_config(CONFIGS / "harmonic.yaml"), evaluation=own).simulates
+    assert prepare(load_config(CONFIGS / "harmonic.yaml", ["adaptation.evaluation=simulation"])).simulates

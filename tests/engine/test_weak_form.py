@@ -12,10 +12,10 @@ from msam_torch.config.schema import load_config
 from msam_torch.data.loading import Dataset
 from msam_torch.signals.derivatives import SavitzkyGolay
 from msam_torch.run.estimation import choose, record_band, refined, regressor_band
-from msam_torch.model.spec import ModelSpec
 from msam_torch.data.systems import System, measure, multisine
 from msam_torch.engine.weak_form import HALF_AMPLITUDE, SHORTEST, resolves
 from tests.run.test_estimator import CONFIG, PARAMETERS, quadratic_drag
+from msam_torch.config.to_spec import to_spec
 
 MODEL = {"states": ["q", "q_dot"], "inputs": ["tau"], "parameters": {"m": 1.0, "c": 1.0},
          "equations": [{"target": "q_ddot", "components": [{"term": "q_dot", "theta": "-c/m"},
@@ -34,7 +34,7 @@ def test_the_regressors_band_reaches_a_velocitys_reversals():
     tau = torch.sin(0.3 * t)
     dataset = Dataset({"t": t, "q": q, "q_dot": q_dot, "q_ddot": torch.zeros_like(t), "tau": tau}, {},
                       {"q": q, "tau": tau})
-    spec = ModelSpec.from_config(load_config({"model": MODEL}).model)
+    spec = to_spec(load_config({"model": MODEL}).model)
     position, _ = record_band({"t": t.numpy(), "q": q.numpy(), "tau": tau.numpy()}, spec.inputs)
     band, edges = regressor_band(spec, dataset)
     assert set(edges) == {"q", "q_dot"}  # neither the input nor the target
@@ -112,7 +112,7 @@ def test_the_diagnosis_interpolates_records_whose_half_width_holds_few_samples(h
     tau = torch.sign(torch.sin(0.05 * t)) if held else torch.cos(0.2 * t)
     dataset = Dataset({"t": t, "q": q, "q_dot": 0.3 * torch.cos(0.3 * t), "tau": tau})
     config = load_config({"model": MODEL})
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     estimation = choose(spec, config.data, dataset, dataset, SavitzkyGolay(), half_width, samples, refine=refine)
     assert estimation.refinement == estimation.info["refinement"] == fold and estimation.decimation == 1
     for signals in (estimation.train, estimation.held_out):

@@ -9,11 +9,11 @@ from msam_torch.run.adapt import adapt
 from msam_torch.engine.candidates import EquationData
 from msam_torch.config.schema import load_config
 from msam_torch.data.loading import load_datasets
-from msam_torch.simulation import free_run_models
-from msam_torch.model.spec import ModelSpec
+from msam_torch.simulation.free_run import free_run_models
 from msam_torch.diagnose import NOT_CATALOGUED, Verdict, diagnose
 from msam_torch.errors import DataError
 from msam_torch.zoo.score import parse_equation
+from msam_torch.config.to_spec import to_spec
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
@@ -51,7 +51,7 @@ def test_emps_names_coulomb_friction_on_a_slice():
     result = adapt(config, base_dir=CONFIGS)
     assert result.data["derivatives"]["q"]["method"] == "butterworth"
     eq = result.equations[0]
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     equation = spec.equations[0]
     laws = named_laws(equation, eq, spec.theta(equation))
     assert [(name, exponent) for _, name, exponent in laws] == [("Coulomb friction", -1.0)], eq.equation
@@ -99,7 +99,7 @@ def test_silverbox_names_cubic_stiffness_on_a_slice():
     result = adapt(config, base_dir=CONFIGS)
     assert result.data["derivatives"]["y"]["method"] == "interpolating_spline"
     eq = result.equations[0]
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     equation = spec.equations[0]
     laws = named_laws(equation, eq, spec.theta(equation))
     assert [(name, exponent) for _, name, exponent in laws] == [("hardening cubic stiffness", 2.0)], eq.equation

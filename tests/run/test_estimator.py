@@ -18,7 +18,7 @@ from msam_torch.config.schema import load_config
 from msam_torch.diagnose import DiagnoseOptions, diagnose
 from msam_torch.errors import ConfigError, MSAMError
 from msam_torch.run.plan import prepare
-from msam_torch.simulation import simulate_equations
+from msam_torch.simulation.equations import simulate_equations
 from msam_torch.data.systems import System, measure, multisine
 
 PARAMETERS = {"m": 2.0, "c": 3.0, "k": 20.0}

@@ -15,8 +15,8 @@ from msam_torch import adapt
 from msam_torch.config.schema import load_config
 from msam_torch.errors import ConfigError
 from msam_torch.model.notation import format_component
-from msam_torch.simulation import free_runs
-from msam_torch.model.spec import ModelSpec
+from msam_torch.simulation.free_run import free_runs
+from msam_torch.config.to_spec import to_spec
 
 
 @pytest.fixture(scope="module")
@@ -25,7 +25,7 @@ def harmonic():
     raw = copy.deepcopy(result.config)
     raw["adaptation"]["simulation"]["output"] = ["x", "x_dot"]
     config = load_config(raw)
-    run = free_runs(config, ModelSpec.from_config(config.model), {"adapted": result.equations}, "configs",
+    run = free_runs(config, to_spec(config.model), {"adapted": result.equations}, "configs",
                     records=("train",))["train"]
     return result, run
 
@@ -152,7 +152,7 @@ def test_print_shows_the_equations_without_a_diagnosis_unadjusted_copies(harmoni
 
 
 def test_an_exponent_that_rounds_to_zero_prints_without_a_sign():
-    spec = ModelSpec.from_config(load_config({"model": {
+    spec = to_spec(load_config({"model": {
         "states": ["i"], "inputs": ["v"], "parameters": {},
         "equations": [{"target": "i_dot", "components": [{"term": "i", "theta": -1.0}], "adjustments": ["abs(i)"]}]}}).model)
     assert format_component(spec.equations[0], 0, 0, -0.0001) == "i|i|^0.000"

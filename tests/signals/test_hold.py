@@ -9,8 +9,8 @@ from msam_torch.diagnose import DiagnoseOptions, diagnose
 from msam_torch.config.schema import load_config
 from msam_torch.run.estimation import kinking, refined, refitted
 from msam_torch.signals.hold import SAMPLED, hermite, is_held, quadrature_values, represent
-from msam_torch.model.spec import ModelSpec
 from msam_torch.zoo import excitation
+from msam_torch.config.to_spec import to_spec
 
 QUICK = DiagnoseOptions(bootstrap=0, steps=20, free_run=False, max_effects=1)
 
@@ -68,7 +68,7 @@ def test_kinks_are_corrected_from_the_starting_models_jump(rate, noise):
     model = {"states": ["x"], "inputs": ["u"], "parameters": {"a": 1.1 * rate, "b": 0.9 * 1.5 * rate},
              "equations": [{"target": "x_dot", "components": [{"term": "x", "theta": "-a"}, {"term": "u", "theta": "b"}],
                             "adjustments": ["abs(x)"]}]}
-    kinks = kinking(ModelSpec.from_config(load_config({"model": model}).model))
+    kinks = kinking(to_spec(load_config({"model": model}).model))
     x = record["x"] + noise * np.random.default_rng(1).standard_normal(record["x"].size)
     out, _, corrected, _ = represent({**record, "x": x}, ["u"], "zoh", kinks)
     switches = np.flatnonzero(np.diff(record["u"], prepend=record["u"][:1]) != 0)
@@ -99,7 +99,7 @@ def test_kinks_take_their_jump_from_the_starting_model_refitted_to_the_record(ra
     model = {"states": ["x"], "inputs": ["u"], "parameters": {"a": 0.8 * rate, "b": 1.2 * 1.5 * rate},
              "equations": [{"target": "x_dot", "components": [{"term": "x", "theta": "-a"}, {"term": "u", "theta": "b"}],
                             "adjustments": ["abs(x)"]}]}
-    spec = ModelSpec.from_config(load_config({"model": model}).model)
+    spec = to_spec(load_config({"model": model}).model)
     nominal, _, _, _ = represent(record, ["u"], "zoh", kinking(spec))
     signals = {**{k: torch.tensor(v) for k, v in nominal.items()}, "x_dot": torch.zeros(len(nominal["x"]), dtype=torch.float64)}
     theta = refitted(kinking(spec), signals, 10 * 0.02)  # the weak form reads no x_dot: a placeholder
@@ -158,7 +158,7 @@ def test_a_kinking_state_follows_the_starting_models_rates_between_samples(rate)
     model = {"states": ["x"], "inputs": ["u"], "parameters": {"a": 1.1 * rate, "b": 0.9 * 1.5 * rate},
              "equations": [{"target": "x_dot", "components": [{"term": "x", "theta": "-a"}, {"term": "u", "theta": "b"}],
                             "adjustments": ["abs(x)"]}]}
-    out, _, _, sides = represent(record, ["u"], "zoh", kinking(ModelSpec.from_config(load_config({"model": model}).model)))
+    out, _, _, sides = represent(record, ["u"], "zoh", kinking(to_spec(load_config({"model": model}).model)))
     dt, x, u = 0.02, record["x"], record["u"]
 
     def exact(k):  # the hold's solution: x relaxes to 1.5 u over each cell
@@ -228,7 +228,7 @@ def test_a_motor_whose_current_settles_within_two_samples_gives_its_drag_law():
                            {"target": "w_dot", "components": [{"term": "i", "theta": "K"}, {"term": "w", "theta": "-c"}],
                             "adjustments": ["abs(w)"]}]}
     config = load_config({"model": model, "data": {"time": "t", "columns": {"i": "i", "w": "w", "u": "u"}}})
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     t = torch.arange(n, dtype=torch.float64) * dt
     signals = {"t": t, "i": torch.tensor(i), "w": torch.tensor(w), "u": torch.tensor(u)}
     record = Dataset(signals, measured={name: v for name, v in signals.items() if name != "t"})

@@ -4,14 +4,13 @@ in one pass per segment where it never does, diverged members marked as before, 
 autograd differentiates the run."""
 import math
 
-import pytest
 import torch
 
 from msam_torch.config.schema import load_config
-from msam_torch.simulation import EquationModel, simulate_equations
+from msam_torch.simulation.equations import EquationModel, simulate_equations
 from msam_torch.simulation import solver
 from msam_torch.simulation.equations import _system
-from msam_torch.model.spec import ModelSpec
+from msam_torch.config.to_spec import to_spec
 
 MODEL = {"states": ["x", "x_dot"], "inputs": ["u"], "parameters": {"c": 1.0, "k": 4.0},
          "equations": [{"target": "x_ddot", "components": [{"term": "x_dot", "theta": "-c"}, {"term": "x", "theta": "-k"},
@@ -23,7 +22,7 @@ N, DT = 601, 0.1  # 600 steps at the sample period: 6 segments of 100 steps (10 
 def _run(rows: list[list[float]], monkeypatch, sequential: bool) -> tuple[dict, int]:
     """Free runs of the oscillator with these theta rows (damping, stiffness, gain) under a
     multisine, sequential or segmented; and the passes the segments took."""
-    spec = ModelSpec.from_config(load_config({"model": MODEL}).model)
+    spec = to_spec(load_config({"model": MODEL}).model)
     t = torch.arange(N, dtype=torch.float64) * DT
     u = sum(torch.sin(2 * math.pi * f * t + f) for f in (0.05, 0.13, 0.31, 0.7))
     passes = []
@@ -70,7 +69,7 @@ def test_a_diverging_member_is_marked_diverged_as_in_the_sequential_run(monkeypa
 
 
 def test_a_run_differentiated_by_autograd_is_not_segmented():
-    spec = ModelSpec.from_config(load_config({"model": MODEL}).model)
+    spec = to_spec(load_config({"model": MODEL}).model)
     model = EquationModel.starting(spec.equations[0], torch.tensor([[-1.0, -4.0, 1.0]], dtype=torch.float64))
     _, p, _ = _system(spec, [model])
     t = torch.arange(N, dtype=torch.float64) * DT

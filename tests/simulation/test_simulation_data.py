@@ -13,10 +13,11 @@ from msam_torch.config.schema import load_config
 from msam_torch.data.loading import Dataset
 from msam_torch.diagnose import diagnose
 from msam_torch.errors import ConfigError
-from msam_torch.simulation import build_model, load_records, output_states
-from msam_torch.model.spec import ModelSpec
+from msam_torch.simulation.ode import build_model
+from msam_torch.simulation.configured import load_records, output_states
 
 from tests.simulation.test_simulation_mode import TANKS, torricelli_record
+from msam_torch.config.to_spec import to_spec
 
 SHORT = ["adaptation.round_robin_steps=2", "adaptation.refinement_steps=1", "adaptation.simulation.prefit_steps=4"]
 
@@ -59,7 +60,7 @@ def test_every_derivative_estimator_gives_the_initial_velocity(derivatives):
                                  "adjustments": ["abs(x)"]}]},
         "data": {"time": "t", "columns": {"x": "x"}, "derivatives": derivatives},
         "adaptation": {"evaluation": "simulation", "simulation": {"output": ["x"]}}})
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     model = build_model(spec, spec.equations)
     load = lambda: load_records(config, spec, model, output_states(config, spec, model), ".", data=frame)
     if derivatives == "exact":
@@ -92,7 +93,7 @@ def test_a_dataset_a_mapping_and_a_path_give_the_record_of_the_config_file(tmp_p
     torricelli_record(tmp_path / "tanks.csv", n=30)
     frame = pd.read_csv(tmp_path / "tanks.csv")
     config = load_config(TANKS)
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     model = build_model(spec, spec.equations)
     outputs = output_states(config, spec, model)
     load = lambda data=None: load_records(config, spec, model, outputs, tmp_path, data=data)[0]

@@ -11,11 +11,11 @@ from msam_torch.engine.candidates import equation_choices
 from msam_torch.config.schema import load_config
 from msam_torch.errors import ConfigError
 from msam_torch.run.plan import prepare
-from msam_torch.simulation import build_model
+from msam_torch.simulation.ode import build_model
 from msam_torch.run.adapt_simulated import prepare_group
-from msam_torch.model.spec import ModelSpec
 
 from tests.simulation.test_simulation_mode import TANKS
+from msam_torch.config.to_spec import to_spec
 
 LINEAR = {"k1": 0.05, "k2": 0.05, "k3": 0.04, "k4": 0.05}
 
@@ -56,7 +56,7 @@ def test_saturation_lets_the_starting_fit_match_a_record_with_a_saturated_level(
 
     def fitted(saturation):
         config = load_config(linear_tanks(saturation))
-        spec = ModelSpec.from_config(config.model)
+        spec = to_spec(config.model)
         prepared = prepare_group(prepare(config), spec.equations, config.model.parameters, tmp_path)
         data = prepared.data
         unadjusted = torch.full_like(prepared.theta, data.model.unadjusted, dtype=torch.long)
@@ -78,7 +78,7 @@ def test_saturation_errors_name_the_key(tmp_path):
     saturated_record(tmp_path / "tanks.csv", 6.0, n=20)
     for saturation, message in (({"x3": [None, 1.0]}, "not a state"), ({"x2": [5.0, 1.0]}, "empty")):
         config = load_config(linear_tanks(saturation))
-        spec = ModelSpec.from_config(config.model)
+        spec = to_spec(config.model)
         with pytest.raises(ConfigError, match=message) as info:
             prepare_group(prepare(config), spec.equations, LINEAR, tmp_path)
         assert "adaptation.simulation.saturation" in str(info.value)
@@ -94,13 +94,13 @@ def component_sets(first: list[str], second: list[str] | None = None) -> dict:
 
 
 def test_component_adjustment_sets_restrict_the_candidates():
-    spec = ModelSpec.from_config(load_config(component_sets(["abs(x1)"], ["abs(x2)"])).model)
+    spec = to_spec(load_config(component_sets(["abs(x1)"], ["abs(x2)"])).model)
     x2_dot = spec.equations[1]
     assert equation_choices(x2_dot).tolist() == [[0, 1]]
     assert build_model(spec, spec.equations).choices().tolist() == [[0, 0, 1]]  # joint: functions (abs(x1), abs(x2))
-    partial = ModelSpec.from_config(load_config(component_sets(["abs(x2)"])).model).equations[1]
+    partial = to_spec(load_config(component_sets(["abs(x2)"])).model).equations[1]
     assert equation_choices(partial).tolist() == [[1, 0], [1, 1]]  # the unrestricted component keeps both
-    unrestricted = ModelSpec.from_config(load_config(TANKS).model).equations[1]
+    unrestricted = to_spec(load_config(TANKS).model).equations[1]
     assert equation_choices(unrestricted).tolist() == [[0, 0], [0, 1], [1, 0], [1, 1]]
 
 
@@ -108,5 +108,5 @@ def test_component_adjustment_sets_restrict_the_candidates():
                                                 (["abs(x1)", "abs(x1)"], "listed twice")])
 def test_component_adjustment_errors_name_the_key(functions, message):
     with pytest.raises(ConfigError, match=message) as info:
-        ModelSpec.from_config(load_config(component_sets(functions)).model)
+        to_spec(load_config(component_sets(functions)).model)
     assert "model.equations[1].components[0].adjustments" in str(info.value)

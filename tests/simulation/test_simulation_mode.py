@@ -13,10 +13,12 @@ from msam_torch.run.adapt import adapt, nominal_parameters
 from msam_torch.config.schema import load_config
 from msam_torch.errors import ConfigError
 from msam_torch.run.plan import prepare
-from msam_torch.simulation import Parameters, build_model, load_records, output_states, simulate
+from msam_torch.simulation.ode import Parameters, build_model
+from msam_torch.simulation.configured import load_records, output_states
+from msam_torch.simulation.solver import simulate
 from msam_torch.run.adapt_simulated import prepare_group
-from msam_torch.model.spec import ModelSpec
 from tests.helpers import measured_case
+from msam_torch.config.to_spec import to_spec
 
 TANKS = {
     "model": {
@@ -88,7 +90,7 @@ def test_simulation_config_errors_name_the_key(tmp_path):
 def test_trials_batch_parameter_sets(tmp_path):
     torricelli_record(tmp_path / "tanks.csv", n=30)
     config = load_config(TANKS, ["adaptation.simulation.prefit_steps=0", "adaptation.theta=fixed"])
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     sets = [nominal_parameters(config, spec), {k: 2 * v for k, v in spec.parameters.items()}]
     prepared = prepare_group(prepare(config), spec.equations, sets, tmp_path)
     assert prepared.theta.shape == (2, 3) and prepared.theta_fixed.shape == (2, 1)
@@ -111,7 +113,7 @@ def test_cubic_input_hold_follows_a_band_limited_input(tmp_path):
                                      "adjustments": ["abs(x)"]}]},
             "data": {"file": "integrator.csv", "time": "t", "columns": {"u": "u", "x": "x"}, "derivatives": "interpolating_spline"},
             "adaptation": {"evaluation": "simulation", "simulation": {"output": ["x"], "input_hold": hold, "substeps": 4}}})
-        spec = ModelSpec.from_config(config.model)
+        spec = to_spec(config.model)
         model = build_model(spec, spec.equations)
         record, _ = load_records(config, spec, model, output_states(config, spec, model), tmp_path)
         inner = torch.arange(20, n - 20, dtype=torch.float64) + 0.5
@@ -143,7 +145,7 @@ def test_a_held_input_is_read_by_every_stage_of_its_own_steps(tmp_path, substeps
                                  "adjustments": ["abs(x)"]}]},
         "data": {"file": "held.csv", "time": "t", "columns": {"u": "u", "x": "x"}},
         "adaptation": {"evaluation": "simulation", "simulation": {"output": ["x"], "input_hold": "zoh"}}})
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     model = build_model(spec, spec.equations)
     record, _ = load_records(config, spec, model, output_states(config, spec, model), tmp_path)
     p = Parameters(torch.zeros(1, 1, dtype=torch.float64), torch.tensor([[1]]), torch.zeros(1, 1, dtype=torch.float64),
@@ -161,7 +163,7 @@ def test_a_diagnosis_whose_candidates_all_diverged_says_so_and_blames_no_candida
     from msam_torch.run.result import EquationResult
 
     config = load_config(TANKS)
-    plan, equation = prepare(config), ModelSpec.from_config(config.model).equations[1]
+    plan, equation = prepare(config), to_spec(config.model).equations[1]
     n = len(equation.components)
     adapted = EquationResult(equation.target, "", "", [None] * n, [None] * n, [0.0] * n, {}, {},
                              [{"adjustments": ["abs(x1)", None], "diverged": True},

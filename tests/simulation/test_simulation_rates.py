@@ -3,8 +3,8 @@ against Eq. 9 evaluated from named signal values, on a model with every kind of 
 import torch
 
 from msam_torch.config.schema import ModelConfig
-from msam_torch.simulation import Parameters, build_model
-from msam_torch.model.spec import ModelSpec
+from msam_torch.simulation.ode import Parameters, build_model
+from msam_torch.config.to_spec import to_spec
 
 MODEL = {
     "states": ["x", "x_dot", "y"],
@@ -21,7 +21,7 @@ MODEL = {
 
 
 def test_stage_rates_equal_eq9_from_values():
-    spec = ModelSpec.from_config(ModelConfig.model_validate(MODEL))
+    spec = to_spec(ModelConfig.model_validate(MODEL))
     model = build_model(spec, spec.equations)
     assert [x.text for x in model.columns.inner] == ["abs(x_dot)", "x*u"]
     assert [x.text for x in model.columns.outer] == ["sin(t) + 2", "abs(u)", "u"]

@@ -2,16 +2,19 @@
 import torch
 
 from msam_torch.config.schema import load_config
-from msam_torch.simulation import SimulationData, build_model, jacobians, load_records, output_states
-from msam_torch.model.spec import ModelSpec
+from msam_torch.simulation.problem import SimulationData
+from msam_torch.simulation.ode import build_model
+from msam_torch.simulation.sensitivities import jacobians
+from msam_torch.simulation.configured import load_records, output_states
 
 from tests.simulation.test_simulation_mode import TANKS, torricelli_record
+from msam_torch.config.to_spec import to_spec
 
 
 def tanks(tmp_path, method):
     torricelli_record(tmp_path / "tanks.csv", n=40)
     config = load_config(TANKS, [f"adaptation.simulation.method={method}"])
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     model = build_model(spec, spec.equations)
     record, _ = load_records(config, spec, model, output_states(config, spec, model), tmp_path)
     x0 = torch.tensor([[2.0, 3.0]], dtype=torch.float64)

@@ -9,12 +9,13 @@ import torch
 import torch.autograd.forward_ad as forward_ad
 
 from msam_torch.config.schema import load_config
-from msam_torch.simulation import EquationModel, solver
+from msam_torch.simulation.equations import EquationModel
+from msam_torch.simulation import solver
 from msam_torch.simulation.equations import _system
 from msam_torch.simulation.ode import Parameters
-from msam_torch.model.spec import ModelSpec
 
 from tests.simulation.test_segments import MODEL
+from msam_torch.config.to_spec import to_spec
 
 N, DT = 401, 0.05
 
@@ -22,7 +23,7 @@ N, DT = 401, 0.05
 def _problem(per_row: bool):
     """The oscillator of MODEL, four rows (the last two the same parameters), adjusted by
     |x|^gamma and |x_dot|^gamma, under a multisine (per row: one amplitude each)."""
-    spec = ModelSpec.from_config(load_config({"model": MODEL}).model)
+    spec = to_spec(load_config({"model": MODEL}).model)
     theta = torch.tensor([[-0.8, -4.0, 1.0], [-1.2, -6.0, 0.7], [-0.5, -3.0, 1.3], [-0.5, -3.0, 1.3]], dtype=torch.float64)
     model, p, _ = _system(spec, [EquationModel.starting(spec.equations[0], theta)])
     p = Parameters(torch.tensor([[0.7, 1.3, 0.0]], dtype=torch.float64).expand(4, 3).contiguous(),

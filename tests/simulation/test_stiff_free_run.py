@@ -10,10 +10,11 @@ from scipy.integrate import solve_ivp
 from msam_torch.config.schema import load_config
 from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
 from msam_torch.diagnose.compare.comparison import STABLE_SHARE
-from msam_torch.simulation import EquationModel
+from msam_torch.simulation.equations import EquationModel
 from msam_torch.simulation.equations import fastest_decay
 from msam_torch.simulation.solver import STABILITY
 from msam_torch.model.spec import ModelSpec
+from msam_torch.config.to_spec import to_spec
 
 # a DC motor: current with an electrical pole at R/L = 600 per second, speed with a mechanical one
 A = np.array([[-600.0, -2.6], [2400.0, -0.5]])
@@ -45,7 +46,7 @@ def _models(spec: ModelSpec, current: list[float], speed: list[float]) -> list[E
 
 
 def test_the_fastest_decaying_mode_of_a_linear_model_is_its_largest_stable_eigenvalue():
-    spec = ModelSpec.from_config(load_config({"model": MODEL}).model)
+    spec = to_spec(load_config({"model": MODEL}).model)
     points = {"t": torch.zeros(3, dtype=torch.float64), "i": torch.tensor([0.0, 1.0, -2.0], dtype=torch.float64),
               "w": torch.tensor([0.0, 10.0, 3.0], dtype=torch.float64), "V": torch.ones(3, dtype=torch.float64)}
     decaying = lambda a: max((abs(v) for v in np.linalg.eigvals(a) if v.real < 0), default=0.0)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import torch
 
 from msam_torch.engine.candidates import EquationData
-from msam_torch.engine.step import StepOptions
+from msam_torch.engine.values import StepOptions
 from msam_torch.diagnose.effects.hypotheses import Fitted, fit, heldout_errors, heldout_rmse, sane
 from msam_torch.diagnose.options import DiagnoseOptions
 from msam_torch.diagnose.stages.rows import WeakForm

@@ -36,7 +36,8 @@ from msam_torch.engine.candidates import EquationData, Selection, columns, predi
 from msam_torch.model.expressions import parse
 from msam_torch.model.notation import format_component, format_equation
 from msam_torch.model.spec import Component, Equation
-from msam_torch.engine.step import State, StepOptions, evaluate, step
+from msam_torch.engine.step import evaluate, step
+from msam_torch.engine.values import State, StepOptions
 from msam_torch.diagnose.stages.rows import WeakForm
 
 ADDITIVE_STARTS = (-0.5, 0.5, 1.5)

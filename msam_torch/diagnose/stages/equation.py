@@ -13,7 +13,7 @@ from msam_torch.data.loading import Dataset
 from msam_torch.model.notation import format_component, format_equation
 from msam_torch.simulation.equations import EquationModel
 from msam_torch.model.spec import Equation, ModelSpec
-from msam_torch.engine.step import StepOptions
+from msam_torch.engine.values import StepOptions
 from msam_torch.diagnose.catalogue import entries as catalogue
 from msam_torch.diagnose.compare import confidence
 from msam_torch.diagnose.effects.bootstrap import bootstrap

@@ -21,7 +21,6 @@ from msam_torch.config.schema import Config, load_config
 from msam_torch.data.loading import DataArgument, resolve_datasets
 from msam_torch.run.plan import prepare
 from msam_torch.run.progress import LOGGER, step, tracked
-from msam_torch.engine.trainer import Algebraic
 from msam_torch.diagnose.effects.adapted import with_effects
 from msam_torch.diagnose.compare.comparison import check_solver, compare
 from msam_torch.diagnose.stages.equation import diagnose_equation
@@ -60,7 +59,7 @@ def _diagnose_once(config: Config, data: DataArgument, validation: DataArgument,
     """One diagnosis of ``config``'s starting model, and a function giving the config with the
     effects of the equations it is given added (None when evaluated by simulation)."""
     plan = prepare(config, in_memory=data is not None)
-    if not isinstance(plan.evaluator, Algebraic):  # judged by simulation
+    if plan.simulates:
         return diagnose_simulated(plan, base_dir, options, data=data, validation=validation), None
     spec, device = plan.spec, plan.device
     _warn_repeated_terms(spec)

@@ -28,7 +28,7 @@ from msam_torch.run.plan import Plan
 from msam_torch.run.progress import LOGGER, step
 from msam_torch.run.result import EquationResult, adjusted_columns
 from msam_torch.simulation.free_run import FreeRun, free_runs
-from msam_torch.model.spec import Equation, ModelSpec, split_derivative
+from msam_torch.model.spec import Equation, split_derivative
 from msam_torch.diagnose.catalogue import entries as catalogue
 from msam_torch.diagnose.compare import confidence, measures
 from msam_torch.diagnose.stages import localise
@@ -36,6 +36,7 @@ from msam_torch.diagnose.stages.localise import signal_values
 from msam_torch.diagnose.report.gap_report import EquationGap, GapReport
 from msam_torch.diagnose.stages.structure import whiteness
 from msam_torch.diagnose.compare.verdict import TRY, Verdict, no_gap_verdict, overall
+from msam_torch.config.to_spec import to_spec
 
 RECORDS = {"train": "train", "validation": "held_out"}
 
@@ -47,7 +48,7 @@ def diagnose_simulated(plan: Plan, base_dir: Path, options, data=None, validatio
     validation records."""
     config = plan.config
     started = time.perf_counter()
-    spec = ModelSpec.from_config(config.model)
+    spec = to_spec(config.model)
     parameters = nominal_parameters(config, spec)
     step(LOGGER, "diagnose", "adapting by simulation", 0, 3)
     result = adapt(config, base_dir=base_dir, data=data, validation=validation)
@@ -93,7 +94,7 @@ def _equation_gap(eq: Equation, adapted: EquationResult, start_theta: list, retu
     equations)."""
     index = [i for i, a in enumerate(adapted.adjustments) if a is not None]
     texts = [f.text for f in eq.adjustments]
-    spec = ModelSpec.from_config(plan.config.model)
+    spec = to_spec(plan.config.model)
     found = {i: catalogue.effect_entry(eq, i, texts.index(adapted.adjustments[i]), adapted.exponents[i],
                                        adapted.theta[i], start_theta[i], spec)[0] for i in index}
     names = {i: catalogue.NOT_CATALOGUED if e is None else e.name for i, e in found.items()}
