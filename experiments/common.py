@@ -58,9 +58,15 @@ def load_experiment(path: Union[str, Path]) -> ExperimentConfig:
     return validate(ExperimentConfig, read_yaml(path, "experiment config"), str(path))
 
 
+def model_path(experiment: ExperimentConfig, config_path: Path) -> Path:
+    """The model config an experiment config names (relative to the experiment config's folder);
+    its folder is the base of the data paths the model config names, as for ``msam run``."""
+    return Path(config_path).parent / experiment.model
+
+
 def model_config(experiment: ExperimentConfig, config_path: Path, variant: str) -> Config:
     """The model config of ``variant``: the experiment's overrides, then the variant's."""
-    return load_config(config_path.parent / experiment.model, experiment.overrides + experiment.variants[variant])
+    return load_config(model_path(experiment, config_path), experiment.overrides + experiment.variants[variant])
 
 
 def level_name(level: float) -> str:
@@ -113,7 +119,7 @@ def standard_compute(experiment: ExperimentConfig, config_path: Path) -> Compute
                 for k, s in experiment.equations.items()}
 
     def compute(config: Config, trials: list[Trial]) -> list[dict]:
-        results = run_trials(config, trials, experiment.seed, config_path.parent, settings,
+        results = run_trials(config, trials, experiment.seed, model_path(experiment, config_path).parent, settings,
                              max_elements=experiment.max_elements)
         return [trial_record(r, experiment) for r in results]
 

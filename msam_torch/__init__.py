@@ -3,7 +3,7 @@
 The public face: :func:`adapt` and :class:`MSAM` (MSAM on every state equation of a config),
 :func:`diagnose` (where the sim-to-real gap lies, which effect causes it, how far it shrinks),
 :func:`load_config`, the options, results and errors. Everything else lives in the subpackages
-(config, model, signals, data, engine, simulation, run, diagnose, cli, zoo) and may change.
+(config, model, data, engine, simulation, run, diagnosis, cli, zoo) and may change.
 The names are imported on first use (PEP 562), so ``import msam_torch`` and ``msam --help`` do
 not load torch, pandas or scipy; ``from msam_torch import adapt`` works as usual.
 """
@@ -16,15 +16,15 @@ __version__ = "0.1.0"
 
 _HOME = {  # public name -> the module that defines it
     "adapt": "run.adapt",
-    "MSAM": "run.estimator",
-    "diagnose": "diagnose.stages.pipeline",
+    "MSAM": "estimator",
+    "diagnose": "diagnosis.stages.pipeline",
     "load_config": "config.schema",
     "Config": "config.schema",
-    "DiagnoseOptions": "diagnose.options",
+    "DiagnoseOptions": "diagnosis.options",
     "StepOptions": "engine.values",
     "Trainer": "engine.trainer",
     "RunResult": "run.result",
-    "GapReport": "diagnose.report.gap_report",
+    "GapReport": "diagnosis.report.gap_report",
     "StateModel": "run.state_model",
     "MSAMError": "errors",
     "ConfigError": "errors",
@@ -36,14 +36,14 @@ __all__ = [*_HOME, "__version__"]
 
 if TYPE_CHECKING:  # the same names for type checkers and the API docs
     from msam_torch.config.schema import Config, load_config
-    from msam_torch.diagnose.options import DiagnoseOptions
-    from msam_torch.diagnose.report.gap_report import GapReport
-    from msam_torch.diagnose.stages.pipeline import diagnose
+    from msam_torch.diagnosis.options import DiagnoseOptions
+    from msam_torch.diagnosis.report.gap_report import GapReport
+    from msam_torch.diagnosis.stages.pipeline import diagnose
     from msam_torch.engine.trainer import Trainer
     from msam_torch.engine.values import StepOptions
     from msam_torch.errors import ConfigError, DataError, MSAMError, NoInformation
     from msam_torch.run.adapt import adapt
-    from msam_torch.run.estimator import MSAM
+    from msam_torch.estimator import MSAM
     from msam_torch.run.result import RunResult
     from msam_torch.run.state_model import StateModel
 

@@ -9,7 +9,7 @@ from msam_torch.errors import MSAMError
 
 def solver(text: str) -> str:
     """An argparse type: a torchdiffeq method name, else a one-line usage error naming the option."""
-    from msam_torch.diagnose.compare.comparison import check_solver
+    from msam_torch.diagnosis.compare.comparison import check_solver
     try:
         check_solver(text)
     except MSAMError as exc:

@@ -65,9 +65,9 @@ def _run(args) -> int:
     for eq in result.equations:
         print(f"starting: {eq.start_equation}")
         print(f"adapted:  {eq.equation}")
-        print(f"  sum|eps|{weak} {eq.start['sum_abs_error']:.4g} -> {eq.final['sum_abs_error']:.4g}, "
-              f"rho {eq.start['rho']:.4f} -> {eq.final['rho']:.4f}, {len(eq.ranking)} candidates, {eq.diverged} diverged")
-        for stage, label in (("start", "tuned starting"), ("final", "tuned adapted")) if eq.theta_tuning else ():
+        print(f"  sum|eps|{weak} {eq.start['sum_abs_error']:.4g} -> {eq.adapted['sum_abs_error']:.4g}, "
+              f"rho {eq.start['rho']:.4f} -> {eq.adapted['rho']:.4f}, {len(eq.ranking)} candidates, {eq.diverged} diverged")
+        for stage, label in (("retuned", "retuned starting"), ("adapted_retuned", "retuned adapted")) if eq.theta_tuning else ():
             tuned = eq.theta_tuning[stage]
             off = ", ".join(f"{100 * e:.3g}%" for e in tuned["nominal_error"])
             print(f"{label}: {tuned['equation']}\n  sum|eps| {tuned['sum_abs_error']:.4g}, rho {tuned['rho']:.4f}; "
@@ -150,7 +150,7 @@ def _require_information(result, path: Path) -> None:
         if eq.ranking and all(c["diverged"] for c in eq.ranking):
             raise NoInformation(f"{eq.target}: every one of the {len(eq.ranking)} candidates diverged "
                                 f"(|gamma| beyond adaptation.gamma_limit or a non-finite fitness); {path} records it")
-        values = [*eq.theta, *(g for g in eq.exponents if g is not None), *eq.final.values()]
+        values = [*eq.theta, *(g for g in eq.exponents if g is not None), *eq.adapted.values()]
         if not all(math.isfinite(v) for v in values):
             raise NoInformation(f"{eq.target}: the fitted theta, exponents or measures are not finite "
                                 f"(check model.parameters and data.parametric_error); {path} records it")
@@ -166,7 +166,7 @@ def _require_diagnosis(report, path: Path) -> None:
     whose re-fitted and adapted models have no finite held-out measure, learnt nothing: no verdict
     is printed; ``path`` (written) records it."""
     import math
-    from msam_torch.diagnose.compare.verdict import TRY
+    from msam_torch.diagnosis.compare.verdict import TRY
 
     for gap in report.equations:
         if all(c.get("diverged", False) for c in gap.ranking):
@@ -179,7 +179,7 @@ def _require_diagnosis(report, path: Path) -> None:
 
 
 def _diagnose(args) -> int:
-    from msam_torch.diagnose.stages.pipeline import diagnose
+    from msam_torch.diagnosis.stages.pipeline import diagnose
 
     if args.threads:
         import torch
@@ -217,8 +217,8 @@ DIAGNOSE_OPTIONS = (  # (flag, DiagnoseOptions field, argparse keywords); defaul
 
 
 def diagnose_options(args):
-    """The :class:`~msam_torch.diagnose.DiagnoseOptions` of the ``diagnose`` command line."""
-    from msam_torch.diagnose.options import DiagnoseOptions
+    """The :class:`~msam_torch.diagnosis.DiagnoseOptions` of the ``diagnose`` command line."""
+    from msam_torch.diagnosis.options import DiagnoseOptions
 
     given = {field: getattr(args, field) for _, field, _ in DIAGNOSE_OPTIONS if getattr(args, field) is not None}
     return DiagnoseOptions(**given, free_run=not args.no_free_run)
@@ -323,7 +323,7 @@ def _dispatch(args) -> int:
 
     belongs = None
     if args.command == "diagnose":
-        from msam_torch.diagnose.report.gap_report import is_report_file as belongs
+        from msam_torch.diagnosis.report.gap_report import is_report_file as belongs
     out = check_folder(args.out, "--out", belongs)
     created = not out.exists()
     with locked(out):

@@ -1,20 +1,17 @@
 """Strategies behind names: one :class:`Registry` per kind of strategy, and the config field type
-that names one (:class:`Choice`).
+that names one (:class:`Strategy`).
 
 A kind of strategy is a ``typing.Protocol`` (a derivative estimator, a step-size rule, an
-evaluator); its registry maps each config name to a factory that makes one. The config schema is
-built from the registries: a config field of type ``Annotated[object, Choice(registry)]`` accepts a
-registered name or an object that satisfies the protocol, its JSON schema lists the registered
-names, and an unknown name is an error that lists them, so a name registered later is accepted and
-shown like the built-in ones. Names become objects in one place, :mod:`msam_torch.prepare`.
+evaluator); its registry maps each config name to a factory that makes one. A config field
+of type ``Annotated[object, Strategy(kind)]`` takes a name or an object; names become objects in
+one place, :func:`msam_torch.run.plan.prepare`, where an unknown name is an error that lists the
+registered ones, so a name registered later is accepted and shown like the built-in ones.
 
-A factory is a zero-argument callable (usually the strategy's class) or, for a strategy defined in
-a module that itself depends on the config schema, its ``"module:attribute"`` path, imported the
-first time that name is chosen (as a package entry point is).
+A factory is a zero-argument callable (usually the strategy's class), registered where the
+strategy is defined (or, for the evaluators, in :mod:`msam_torch.run.evaluators`).
 """
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
 from typing import Callable, Generic, TypeVar
 
@@ -32,15 +29,15 @@ class Registry(Generic[T]):
         self.key = key
         self.protocol = protocol
         self.kind = kind
-        self._factories: dict[str, Callable[[], T] | str] = {}
+        self._factories: dict[str, Callable[[], T]] = {}
 
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(self._factories)
 
-    def register(self, name: str, factory: Callable[[], T] | str):
-        """Make ``factory`` (a class, a zero-argument callable or a ``"module:attribute"`` path)
-        the strategy called ``name``; returns ``factory``, so it serves as a class decorator too."""
+    def register(self, name: str, factory: Callable[[], T]):
+        """Make ``factory`` (a class or a zero-argument callable) the strategy called ``name``;
+        returns ``factory``."""
         self._factories[name] = factory
         return factory
 
@@ -48,11 +45,7 @@ class Registry(Generic[T]):
         """A new strategy of the registered ``name``."""
         if name not in self._factories:
             raise ConfigError(self.key, self.unknown(name))
-        factory = self._factories[name]
-        if isinstance(factory, str):
-            module, _, attribute = factory.partition(":")
-            factory = self._factories[name] = getattr(importlib.import_module(module), attribute)
-        return factory()
+        return self._factories[name]()
 
     def resolve(self, value: str | T) -> T:
         """The strategy named by ``value``, or ``value`` itself when it is already one."""
@@ -76,20 +69,20 @@ def label(value) -> str:
 
 
 @dataclass(frozen=True)
-class Choice:
-    """Pydantic field annotation: a registered name of ``registry`` or an object satisfying its
-    protocol. Names are checked against the registry when a config is validated; an object is kept
-    as it is, and written as its ``name`` in JSON (``model_dump(mode="json")``: results, resolved configs)."""
+class Strategy:
+    """Pydantic field annotation of a key that names a strategy of ``kind``: a name or, from Python,
+    an object that is one. Loading the config checks only that much (the registries live with the
+    strategies, above the config); the name is looked up in its :class:`Registry` when the config
+    is planned (:func:`msam_torch.run.plan.prepare`, before any data is read), where an unknown name
+    is an error listing the known ones. An object is kept as it is, and written as its ``name`` in
+    JSON (``model_dump(mode="json")``: results, resolved configs)."""
 
-    registry: Registry
+    kind: str
 
     def _check(self, value):
-        if isinstance(value, str):
-            if value not in self.registry.names:
-                raise ValueError(self.registry.unknown(value))
-            return value
-        if not isinstance(value, self.registry.protocol):
-            raise ValueError(self.registry.not_a_strategy(value))
+        if isinstance(value, (bool, int, float, list, tuple, dict, type(None))):
+            raise ValueError(f"expected the name of a {self.kind} or, from Python, a {self.kind} object, "
+                             f"got {type(value).__name__}")
         return value
 
     def __get_pydantic_core_schema__(self, source, handler):
@@ -97,4 +90,4 @@ class Choice:
             self._check, serialization=core_schema.plain_serializer_function_ser_schema(label, when_used="json"))
 
     def __get_pydantic_json_schema__(self, schema, handler):
-        return {"type": "string", "enum": list(self.registry.names)}
+        return {"type": "string"}

@@ -8,6 +8,7 @@ Values are data: YAML is read with a ``yaml.SafeLoader`` and no string is ever e
 """
 from __future__ import annotations
 
+import enum
 import math
 import re
 from pathlib import Path
@@ -17,11 +18,8 @@ import pydantic
 import yaml
 from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
 
-from msam_torch.signals.derivatives import ESTIMATORS
 from msam_torch.errors import ConfigError
-from msam_torch.run.evaluators import EVALUATORS
-from msam_torch.config.registry import Choice
-from msam_torch.engine.step_rules import STEP_SIZES, ThetaRule
+from msam_torch.config.registry import Strategy
 from msam_torch.config.suggestions import misspelt
 
 MAX_YAML_DEPTH = 64
@@ -46,6 +44,19 @@ def _not_boolean(value):
 
 Number = Annotated[Union[float, int], BeforeValidator(_not_boolean), AfterValidator(_within_float64)]
 
+
+
+class ThetaRule(str, enum.Enum):
+    """``adaptation.theta``: theta at its nominal value, or re-solved by linear least squares at
+    every step (variable projection with Kaufman's Jacobian, design notes section 3). A member
+    equals its config name."""
+
+    FIXED = "fixed"
+    VARPRO = "varpro"
+
+    @property
+    def re_solved(self) -> bool:
+        return self is ThetaRule.VARPRO
 
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -99,7 +110,7 @@ def _plain_quantity(value):
 
 
 class EffectConfig(_Section):
-    """A catalogued physical effect ``theta' M |s|^gamma`` (msam_torch/diagnose/catalogue/catalogue.yaml has the
+    """A catalogued physical effect ``theta' M |s|^gamma`` (msam_torch/diagnosis/catalogue/catalogue.yaml has the
     bundled ones in the same format)."""
 
     name: str = Field(min_length=1)
@@ -159,8 +170,8 @@ class DataConfig(_Section):
     parametric_error: float = Field(0.0, ge=0, description="total relative error of the nominal parameters")
     noise: float = Field(0.0, ge=0, description="simulated measurement noise, as a fraction of each signal's std")
     seed: int = Field(0, ge=0, lt=2**64, description="random seed (0 <= seed < 2**64)")
-    derivatives: Annotated[Any, Choice(ESTIMATORS)] = Field(
-        "auto", description="how unmeasured derivatives are estimated: a name in msam_torch.signals.derivatives.ESTIMATORS "
+    derivatives: Annotated[Any, Strategy("derivative estimator")] = Field(
+        "auto", description="how unmeasured derivatives are estimated: a name in msam_torch.data.derivatives.ESTIMATORS "
                             "or, from Python, an estimator object; 'auto': exact for a noise-free simulated system, "
                             "else savgol; 'exact': every signal the model reads is given")
     window: Optional[int] = Field(None, ge=3, description="derivative estimator window in samples "
@@ -203,7 +214,7 @@ class AdaptationConfig(_Section):
     refinement_steps: int = Field(70, ge=0, description="I2")
     dgamma: float = Field(1e-2, gt=0, description="exponent perturbation of Eq. 15-16")
     scaling: Literal["dm", "gauss_newton"] = Field("dm", description="step in dM-scaled units (Eq. 16-18) or in exponent units")
-    step_size: Annotated[Any, Choice(STEP_SIZES)] = Field(
+    step_size: Annotated[Any, Strategy("step-size rule")] = Field(
         "eq20", description="mu by Eq. 20, mu = 1, or backtracking (msam_torch.engine.step_rules.STEP_SIZES, or a rule object)")
     theta: ThetaRule = Field(ThetaRule.FIXED, description="nominal theta, or re-solved each step (variable projection)")
     normalize: Literal["none", "rms"] = Field("none", description="divide each adjustment function by its RMS")
@@ -220,7 +231,7 @@ class AdaptationConfig(_Section):
     chunk_size: int = Field(4096, ge=1, description="candidates per batched chunk (bounds memory)")
     dtype: Literal["float64", "float32"] = "float64"
     device: str = Field("cpu", description="torch device, one the installed torch can use ('cpu', 'cuda', 'cuda:1')")
-    evaluation: Annotated[Any, Choice(EVALUATORS)] = Field(
+    evaluation: Annotated[Any, Strategy("evaluator")] = Field(
         "algebraic", description="candidate outputs from estimated states (Eq. 6) or by simulation "
                                  "(msam_torch.run.evaluators.EVALUATORS, or an evaluator object)")
     simulation: SimulationConfig = SimulationConfig()

@@ -3,7 +3,7 @@
 
 A *signal* is a 1-D tensor over the samples: states, inputs, their time derivatives and ``t``.
 Signals the model reads but the data do not hold are estimated from the measured signal of the
-same base name (``x_ddot`` from ``x`` or ``x_dot``) with :mod:`msam_torch.signals.derivatives`; measured
+same base name (``x_ddot`` from ``x`` or ``x_dot``) with :mod:`msam_torch.data.derivatives`; measured
 states are replaced by their smoothed estimate at the same time, so regressors and targets share
 one filter. Every check names the place: the file (or table), the column, the row (the file's
 line for CSV files, the 0-based row otherwise) and the config key.
@@ -20,9 +20,9 @@ import numpy as np
 import pandas as pd
 import torch
 
-from msam_torch.signals.bandwidth import RESOLVED, decimate, oversampling
+from msam_torch.data.bandwidth import RESOLVED, decimate, oversampling
 from msam_torch.config.schema import DataConfig, RangeConfig
-from msam_torch.signals.derivatives import ESTIMATORS, Auto, DerivativeEstimator, Exact, configured, noise_level, takes
+from msam_torch.data.derivatives import ESTIMATORS, Auto, DerivativeEstimator, Exact, configured, noise_level, takes
 from msam_torch.errors import ConfigError, DataError
 from msam_torch.data.information import check_variation
 from msam_torch.model.spec import ModelSpec, split_derivative
@@ -217,7 +217,7 @@ def measured_dataset(frame: pd.DataFrame, config: DataConfig, spec: ModelSpec, s
 def decimate_oversampled(t: np.ndarray, measured: dict, info: dict,
                          period: float | None = None) -> tuple[np.ndarray, dict, dict]:
     """A record on a uniform grid sampled far faster than its band, low-pass filtered and
-    decimated (by :func:`~msam_torch.signals.bandwidth.oversampling`'s factor, or to about the sample time
+    decimated (by :func:`~msam_torch.data.bandwidth.oversampling`'s factor, or to about the sample time
     ``period``: a held-out record at the training record's rate, whatever its own) before anything
     else reads it; ``info['decimated']`` records how. Irregular grids stay as they are."""
     dt = info["sample_time"]

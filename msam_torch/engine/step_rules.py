@@ -1,5 +1,6 @@
 """The rules of one MSAM step that the config names: the step size ``mu`` of Eq. 18
-(:class:`StepSizeRule`, one of :data:`STEP_SIZES`) and how theta is treated (:class:`ThetaRule`).
+(:class:`StepSizeRule`, one of :data:`STEP_SIZES`); how theta is treated is the config's
+:class:`~msam_torch.config.schema.ThetaRule`.
 
 ``adaptation.step_size`` names a rule or, from Python, is one (any object with ``name``, ``mu`` and
 ``settled``). The config schema imports this module, so it imports no torch at load: the rules work
@@ -7,7 +8,6 @@ on the tensors they are given.
 """
 from __future__ import annotations
 
-import enum
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable, ClassVar, Protocol, runtime_checkable
 
@@ -93,16 +93,3 @@ class LineSearch:
 STEP_SIZES: Registry[StepSizeRule] = Registry("adaptation.step_size", StepSizeRule, "step-size rule")
 for _rule in (Eq20, One, LineSearch):
     STEP_SIZES.register(_rule.name, _rule)
-
-
-class ThetaRule(str, enum.Enum):
-    """``adaptation.theta``: theta at its nominal value, or re-solved by linear least squares at
-    every step (variable projection with Kaufman's Jacobian, design notes section 3). A member
-    equals its config name."""
-
-    FIXED = "fixed"
-    VARPRO = "varpro"
-
-    @property
-    def re_solved(self) -> bool:
-        return self is ThetaRule.VARPRO

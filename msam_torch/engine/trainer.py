@@ -36,7 +36,7 @@ class Fit:
     ``choices`` (C, Q): the adjustment index of every adjustable component per candidate;
     ``ranking_fitness`` (T, C): each candidate's best fitness in the round robin;
     ``winner`` (T,); ``gamma`` (T, Q), ``theta`` (T, Q), ``theta_fixed`` (T, P): the adapted model;
-    ``start`` / ``final``: dicts of (T,) tensors ``fitness``, ``sum_abs_error``, ``rho``;
+    ``start`` / ``adapted``: dicts of (T,) tensors ``fitness``, ``sum_abs_error``, ``rho``;
     ``diverged`` (T, C): candidates marked and skipped.
     """
 
@@ -48,7 +48,7 @@ class Fit:
     theta: torch.Tensor
     theta_fixed: torch.Tensor
     start: dict
-    final: dict
+    adapted: dict
     diverged: torch.Tensor
     initial: torch.Tensor | None = None  # (T, S) estimated initial states (simulation mode)
 
@@ -114,7 +114,7 @@ class Trainer:
             choices=choices, ranking_fitness=ranking_fitness, ranking_gamma=ranking.gamma, winner=winner,
             gamma=refined.gamma[:, 0], theta=final.theta[:, 0], theta_fixed=final.theta_fixed[:, 0],
             start=self.evaluator.starting_measures(data, theta, theta_fixed),
-            final=measures(data.y, final.yhat[:, 0]), diverged=diverged,
+            adapted=measures(data.y, final.yhat[:, 0]), diverged=diverged,
             initial=None if refined.initial is None else refined.initial[:, 0],
         )
         self.trigger("refinement_end", fit=fit)

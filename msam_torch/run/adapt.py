@@ -118,19 +118,20 @@ def adapt_equation(config: Config, equation: Equation, signals: dict, theta: tor
     start = torch.tensor([equation.components[i].start for i in equation.adjustable], dtype=data.y.dtype,
                          device=data.y.device)
     fit = trainer.fit(data, theta_adjustable, theta_fixed, start, choices=equation_choices(equation, data.y.device))
-    tuned_final = tune_adapted(data, fit.choices[fit.winner], fit.gamma, fit.theta_fixed, a.hold_fixed)
+    tuned_adapted = tune_adapted(data, fit.choices[fit.winner], fit.gamma, fit.theta_fixed, a.hold_fixed)
     held = None if held_out is None else EquationData.build(equation, held_out)
-    tuning = Tuning(tuned_start, tuned_final, a.tune_theta, a.hold_fixed, held)
+    tuning = Tuning(tuned_start, tuned_adapted, a.tune_theta, a.hold_fixed, held)
     return [equation_result(equation, fit, theta[i], data.scale[i], i, tuning, data.theta_scale[i])
             for i in range(trials)]
 
 
 @dataclass(frozen=True)
 class Tuning:
-    """Theta re-estimated for the starting and the adapted model, and the held-out data."""
+    """Theta re-estimated for the starting model (``retuned``) and the adapted one
+    (``adapted_retuned``), and the held-out data."""
 
-    start: Tuned
-    final: Tuned
+    retuned: Tuned
+    adapted_retuned: Tuned
     used_for_start: bool
     hold_fixed: bool
     validation: EquationData | None = None
@@ -181,17 +182,18 @@ def equation_result(equation: Equation, fit: Fit, theta: torch.Tensor, scale: to
     if tuning is not None:
         nominal = theta.to(fit.gamma.dtype)
         start_units = 1.0 if component_scale is None else 1.0 / component_scale
-        tuned_theta = in_order(equation, tuning.start.theta[trial] * start_units, tuning.start.theta_fixed[trial])
+        tuned_theta = in_order(equation, tuning.retuned.theta[trial] * start_units, tuning.retuned.theta_fixed[trial])
         if tuning.used_for_start:
             start_theta = tuned_theta
-        final_theta = in_order(equation, tuning.final.theta[trial] * to_data_units, tuning.final.theta_fixed[trial])
+        adapted_theta = in_order(equation, tuning.adapted_retuned.theta[trial] * to_data_units,
+                                 tuning.adapted_retuned.theta_fixed[trial])
         error = lambda tuned: relative_error(nominal.cpu(), torch.tensor(tuned, dtype=nominal.dtype)).tolist()
         extra["theta_tuning"] = {
             "used_for_start": tuning.used_for_start, "hold_fixed": tuning.hold_fixed,
-            "start": {"equation": format_equation(equation.target, tuned_theta, start_terms), "theta": tuned_theta,
-                      **pick(tuning.start.measures), "nominal_error": error(tuned_theta)},
-            "final": {"equation": format_equation(equation.target, final_theta, terms), "theta": final_theta,
-                      **pick(tuning.final.measures), "nominal_error": error(final_theta)},
+            "retuned": {"equation": format_equation(equation.target, tuned_theta, start_terms), "theta": tuned_theta,
+                        **pick(tuning.retuned.measures), "nominal_error": error(tuned_theta)},
+            "adapted_retuned": {"equation": format_equation(equation.target, adapted_theta, terms), "theta": adapted_theta,
+                                **pick(tuning.adapted_retuned.measures), "nominal_error": error(adapted_theta)},
         }
         if tuning.validation is not None:
             extra["validation"] = validation_measures(equation, fit, tuning, nominal, to_data_units, start_units, trial)
@@ -200,14 +202,14 @@ def equation_result(equation: Equation, fit: Fit, theta: torch.Tensor, scale: to
         equation=format_equation(equation.target, thetas, terms),
         start_equation=format_equation(equation.target, start_theta, start_terms),
         adjustments=adjustments, exponents=exponents, theta=thetas,
-        start=pick(fit.start), final=pick(fit.final), ranking=ranking,
+        start=pick(fit.start), adapted=pick(fit.adapted), ranking=ranking,
         diverged=int(fit.diverged[trial].sum()), **extra,
     )
 
 
 def validation_measures(equation: Equation, fit: Fit, tuning: Tuning, nominal: torch.Tensor,
                         to_data_units: torch.Tensor, start_units, trial: int) -> dict:
-    """Measures on the held-out data of the starting, tuned starting, adapted and tuned adapted
+    """Measures on the held-out data of the ``start``, ``retuned``, ``adapted`` and ``adapted_retuned``
     models (one-step, algebraic; the held-out data are not normalised: theta is in data units)."""
     held = tuning.validation
     choice = fit.choices[fit.winner[trial]].unsqueeze(0)
@@ -215,9 +217,10 @@ def validation_measures(equation: Equation, fit: Fit, tuning: Tuning, nominal: t
     adjustable, fixed = list(equation.adjustable), list(equation.fixed)
     models = {
         "start": (None, nominal[adjustable], nominal[fixed]),
-        "start_tuned": (None, tuning.start.theta[trial] * start_units, tuning.start.theta_fixed[trial]),
-        "final": (choice, fit.theta[trial] * to_data_units, fit.theta_fixed[trial]),
-        "final_tuned": (choice, tuning.final.theta[trial] * to_data_units, tuning.final.theta_fixed[trial]),
+        "retuned": (None, tuning.retuned.theta[trial] * start_units, tuning.retuned.theta_fixed[trial]),
+        "adapted": (choice, fit.theta[trial] * to_data_units, fit.theta_fixed[trial]),
+        "adapted_retuned": (choice, tuning.adapted_retuned.theta[trial] * to_data_units,
+                            tuning.adapted_retuned.theta_fixed[trial]),
     }
     return {name: {k: float(v[0]) for k, v in measure_model(held, c, gamma, th.unsqueeze(0), tf.unsqueeze(0)).items()}
             for name, (c, th, tf) in models.items()}

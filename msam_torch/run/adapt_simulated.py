@@ -184,6 +184,6 @@ def equation_results(fit, prepared: Prepared, trial: int = 0) -> list[EquationRe
         results.append(EquationResult(
             target=eq.target, equation=format_equation(eq.target, thetas, terms),
             start_equation=format_equation(eq.target, start_thetas, [c.term.text for c in eq.components]),
-            adjustments=adjustments, exponents=exponents, theta=thetas, start=pick(fit.start), final=pick(fit.final),
+            adjustments=adjustments, exponents=exponents, theta=thetas, start=pick(fit.start), adapted=pick(fit.adapted),
             ranking=ranking, diverged=int(fit.diverged[trial].sum())))
     return results

@@ -4,13 +4,13 @@ diagnosis, and for ``adapt`` in the weak form, ``adaptation.form``).
 
 The weak form integrates the measured signals themselves; a derivative the data do not hold
 (``x_dot`` with only ``x`` measured) is estimated with a smoother whose cut-off lies above the
-band (:class:`~msam_torch.signals.derivatives.InBand`). The band edge ``f_b`` is the highest, over the
+band (:class:`~msam_torch.data.derivatives.InBand`). The band edge ``f_b`` is the highest, over the
 measured states (what the inputs excited in the system; :func:`record_band`, the diagnosis's rule)
 or over the signals the regressors read (:func:`regressor_band`, ``adapt``'s), of the frequency
 below which 99 % of a signal's power above its white-noise floor lies; the bump test function
 passes ``f_b`` at half amplitude for the half-width ``h = 0.6 / f_b`` (time units of the system,
 not a share of the record). Records sampled far faster than the band are low-pass filtered and
-decimated (:func:`~msam_torch.signals.bandwidth.decimate`) to about :data:`SAMPLES` samples, never below 7
+decimated (:func:`~msam_torch.data.bandwidth.decimate`) to about :data:`SAMPLES` samples, never below 7
 samples per band period nor 16 per half-width. A record sampled so slowly that a half-width holds
 fewer than 16 samples is, for the diagnosis, interpolated between them (:func:`refined`), to at most
 16 times :data:`SAMPLES` samples."""
@@ -24,11 +24,11 @@ import numpy as np
 import torch
 from scipy.signal import resample_poly
 
-from msam_torch.signals import hold
-from msam_torch.signals.bandwidth import band_edge, decimate
+from msam_torch.data import hold
+from msam_torch.data.bandwidth import band_edge, decimate
 from msam_torch.config.schema import DataConfig
 from msam_torch.data.loading import Dataset, build_dataset
-from msam_torch.signals.derivatives import DerivativeEstimator, InBand
+from msam_torch.data.derivatives import DerivativeEstimator, InBand
 from msam_torch.errors import DataError, MSAMError
 from msam_torch.simulation.equations import EquationModel
 from msam_torch.model.spec import ModelSpec, derivative_name, split_derivative
@@ -42,7 +42,7 @@ SAMPLES = 1000  # records are low-pass filtered and decimated to about this many
 
 
 def record_band(measured: Mapping[str, np.ndarray], inputs) -> tuple[float, dict]:
-    """The band edge (cycles per sample, :func:`~msam_torch.signals.bandwidth.band_edge`) of a record: the
+    """The band edge (cycles per sample, :func:`~msam_torch.data.bandwidth.band_edge`) of a record: the
     highest over its varying measured states, what the inputs excited in the system (over the
     inputs too when no state varies); and each varying signal's."""
     edges = {k: band_edge(v) for k, v in measured.items() if k != "t" and np.ptp(v) > 0}
@@ -104,7 +104,7 @@ def _measured(dataset: Dataset) -> dict[str, np.ndarray]:
 @dataclass(frozen=True)
 class Kink:
     """The starting model's rate of a signal (``T`` of ``T_dot``) whose equation reads an input, at the
-    samples of a record where it is held (:mod:`~msam_torch.signals.hold`): on either side of each sample
+    samples of a record where it is held (:mod:`~msam_torch.data.hold`): on either side of each sample
     (where the input switches, the rate jumps: the signal kinks), and its slope in the signal."""
 
     signal: str
@@ -155,7 +155,7 @@ def refitted(kinks: Mapping[str, Kink], signals: Mapping[str, torch.Tensor],
     """The theta of each kinking equation's starting components re-fitted to ``signals`` by least
     squares in the weak form (test functions of ``half_width``): the input coefficients that give a
     kink's jump, and the state's that gives its slope, as the record gives them rather than the
-    nominal ones (:mod:`~msam_torch.signals.hold`); an equation whose fit is not determined keeps its theta."""
+    nominal ones (:mod:`~msam_torch.data.hold`); an equation whose fit is not determined keeps its theta."""
     tests = TestFunctions.spanning(signals["t"], half_width)
     out = {}
     for kink in kinks.values():
@@ -178,11 +178,11 @@ def refitted(kinks: Mapping[str, Kink], signals: Mapping[str, torch.Tensor],
 def _signals(measured: dict, every: int, band: float, data: DataConfig, spec: ModelSpec, dtype,
              estimator: DerivativeEstimator, exact: bool, source: str, kinks: dict) -> tuple[dict, dict, dict]:
     """Decimated measured signals (held inputs as their quadrature values, the states' kinks at
-    their switches corrected by ``kinks``, :mod:`~msam_torch.signals.hold`) with the derivatives the model
+    their switches corrected by ``kinks``, :mod:`~msam_torch.data.hold`) with the derivatives the model
     reads that they lack; how they were formed (the derivative estimates, each input's assumed
     hold, the kink-corrected signals); and, where the record is not decimated, the shapes of its
     held inputs and kink-corrected states between samples (:func:`_refined`): the held inputs' samples,
-    the states' :class:`~msam_torch.signals.hold.Sides`."""
+    the states' :class:`~msam_torch.data.hold.Sides`."""
     t = measured["t"][::every]
     raw = measured
     measured, held, kinks, sides = hold.represent(measured, spec.inputs, data.input_hold, kinks)
@@ -265,9 +265,9 @@ def _refined(signals: dict, formed: dict, shapes: dict, k: int, device) -> dict:
     """A record's weak-form signals on ``device``, interpolated ``k``-fold (:func:`refined`):
     band-limited where no input is held; where one is (its states kink at every switch, and a
     band-limited interpolation rings there), by their ``shapes`` between samples (:func:`_signals`):
-    a kinking state along the starting model's rates (:func:`~msam_torch.signals.hold.hermite`), a held
-    input as held (:func:`~msam_torch.signals.hold.held_finer`), every other signal by local cubics
-    (:func:`~msam_torch.signals.hold.local_cubic`), so that every signal is as exact between samples as the
+    a kinking state along the starting model's rates (:func:`~msam_torch.data.hold.hermite`), a held
+    input as held (:func:`~msam_torch.data.hold.held_finer`), every other signal by local cubics
+    (:func:`~msam_torch.data.hold.local_cubic`), so that every signal is as exact between samples as the
     others (a straight line between samples is the samples seen through a wider test function, and
     the quadrature is consistent only where every signal is seen through it); linearly where the
     record was decimated (no shapes)."""
@@ -286,7 +286,7 @@ def refined(signal: torch.Tensor, k: int, shape: str = "linear") -> torch.Tensor
     """A signal (time on its last axis) interpolated ``k``-fold between its samples: where a
     half-width holds fewer than :data:`QUADRATURE` samples, the weak form's quadrature of a candidate
     function (``sign(v)`` of a speed that reverses within a few samples) needs points between them.
-    ``shape``: ``linear``, ``cubic`` (local cubics, :func:`~msam_torch.signals.hold.local_cubic`) or
+    ``shape``: ``linear``, ``cubic`` (local cubics, :func:`~msam_torch.data.hold.local_cubic`) or
     ``band-limited`` (the polyphase low-pass of :func:`scipy.signal.resample_poly`); the last two keep
     a smooth function of a signal within a few tenths of a percent of its weak form where linear
     interpolation is off by several percent."""

@@ -2,8 +2,8 @@
 
 ``data.derivatives``, ``adaptation.evaluation``, ``adaptation.step_size`` and ``adaptation.theta``
 name strategies kept in registries (:mod:`msam_torch.config.registry`): derivative estimators
-(:data:`~msam_torch.signals.derivatives.ESTIMATORS`), evaluators (:data:`~msam_torch.run.evaluators.EVALUATORS`)
-and step-size rules (:data:`~msam_torch.engine.step_rules.STEP_SIZES`; theta: :class:`~msam_torch.engine.step_rules.ThetaRule`).
+(:data:`~msam_torch.data.derivatives.ESTIMATORS`), evaluators (:data:`~msam_torch.run.evaluators.EVALUATORS`)
+and step-size rules (:data:`~msam_torch.engine.step_rules.STEP_SIZES`; theta: :class:`~msam_torch.config.schema.ThetaRule`).
 :func:`prepare` turns them into objects, once, in a frozen :class:`Plan` that ``adapt``, the trial
 protocol and ``diagnose`` run from; nothing downstream reads those config keys again.
 
@@ -37,7 +37,8 @@ import torch
 
 from msam_torch.config.schema import Config, validate
 from msam_torch.data.loading import DataArgument, Dataset, derivative_estimator
-from msam_torch.signals.derivatives import DerivativeEstimator
+from msam_torch.data.derivatives import ESTIMATORS, DerivativeEstimator
+from msam_torch.engine.step_rules import STEP_SIZES
 from msam_torch.errors import ConfigError
 from msam_torch.run.evaluators import EVALUATORS
 from msam_torch.engine.values import Evaluator
@@ -160,6 +161,18 @@ def prepare(config: Config, in_memory: bool = False, measured: bool = False, **s
     a = config.adaptation
     return Plan(config, to_spec(config.model), derivative_estimator(config.data, in_memory),
                 evaluator, step_options(config), getattr(torch, a.dtype), torch.device(a.device))
+
+
+REGISTRIES = {("DataConfig", "derivatives"): ESTIMATORS, ("AdaptationConfig", "step_size"): STEP_SIZES,
+              ("AdaptationConfig", "evaluation"): EVALUATORS}  # the config keys that name a strategy
+
+
+def config_schema() -> dict:
+    """The JSON schema of a config, every key that names a strategy listing the registered names."""
+    schema = Config.model_json_schema()
+    for (section, key), registry in REGISTRIES.items():
+        schema["$defs"][section]["properties"][key]["enum"] = list(registry.names)
+    return schema
 
 
 def make_trainer(plan: Plan, diagnostics: bool = False) -> Trainer:

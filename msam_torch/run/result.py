@@ -42,13 +42,13 @@ class EquationResult:
 
     ``adjustments``: per component, the selected function text or null (fixed component);
     ``exponents``: per component, the final gamma or null; ``theta``: final theta per component;
-    ``start``, ``final``: ``fitness``, ``sum_abs_error``, ``rho``;
+    ``start``, ``adapted``: ``fitness``, ``sum_abs_error``, ``rho``;
     ``ranking``: every candidate with its adjustments and best round-robin fitness, best first;
     ``diverged``: number of candidates marked diverged and skipped;
     ``theta_tuning``: theta re-estimated by least squares for the starting and for the adapted
-    model (``start``/``final``: ``equation``, ``theta``, measures and ``nominal_error``, the
+    model (``retuned``/``adapted_retuned``: ``equation``, ``theta``, measures and ``nominal_error``, the
     relative distance of each nominal theta from the tuned one), ``used_for_start``, ``hold_fixed``;
-    ``validation``: measures on held-out data of ``start``, ``start_tuned``, ``final``, ``final_tuned``.
+    ``validation``: measures on held-out data of ``start``, ``retuned``, ``adapted``, ``adapted_retuned``.
     """
 
     target: str
@@ -58,7 +58,7 @@ class EquationResult:
     exponents: list
     theta: list
     start: dict
-    final: dict
+    adapted: dict
     ranking: list
     diverged: int
     theta_tuning: dict = field(default_factory=dict)
@@ -80,7 +80,7 @@ class RunResult:
         return "\n".join(e.equation for e in self.equations)
 
     def model(self, stage: str = "adapted", dtype=torch.float64):
-        """The state equations of ``stage`` (``start``, ``retuned``, ``adapted``, ``adapted_tuned``)
+        """The state equations of ``stage`` (``start``, ``retuned``, ``adapted``, ``adapted_retuned``)
         as an ``nn.Module`` ``f(t, x)`` (:class:`~msam_torch.run.state_model.StateModel`)."""
         return StateModel.from_result(self, stage, dtype)
 

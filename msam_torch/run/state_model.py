@@ -25,7 +25,7 @@ from msam_torch.simulation.solver import simulate
 from msam_torch.model.spec import ModelSpec, split_derivative
 from msam_torch.config.to_spec import to_spec
 
-STAGES = ("start", "retuned", "adapted", "adapted_tuned")
+STAGES = ("start", "retuned", "adapted", "adapted_retuned")
 
 
 @dataclass(frozen=True)
@@ -41,7 +41,7 @@ class Stage:
 def result_stage(spec: ModelSpec, equations: list, data: dict, stage: str) -> Stage:
     """``stage`` of a run's :class:`~msam_torch.run.result.EquationResult` list (``data``: the run's
     provenance): ``start`` (nominal theta), ``retuned`` (starting structure, theta re-estimated),
-    ``adapted``, ``adapted_tuned`` (adapted structure, theta re-estimated; one-step runs)."""
+    ``adapted``, ``adapted_retuned`` (adapted structure, theta re-estimated; one-step runs)."""
     if stage not in STAGES:
         raise ConfigError("stage", f"unknown stage {stage!r} (choose from {', '.join(STAGES)})")
     none = tuple([None] * len(e.theta) for e in equations)
@@ -51,11 +51,11 @@ def result_stage(spec: ModelSpec, equations: list, data: dict, stage: str) -> St
     simulated = {t: th for group in data.get("simulation", []) for t, th in group.get("retuned_theta", {}).items()}
     if stage == "retuned" and all(e.target in simulated for e in equations):
         return Stage(none, none, tuple(simulated[e.target] for e in equations))
-    if stage in ("retuned", "adapted_tuned") and not all(e.theta_tuning for e in equations):
+    if stage in ("retuned", "adapted_retuned") and not all(e.theta_tuning for e in equations):
         raise ConfigError("stage", f"this run has no stage {stage!r} (theta was not re-estimated)")
     if stage == "retuned":
-        return Stage(none, none, tuple(e.theta_tuning["start"]["theta"] for e in equations))
-    theta = [e.theta_tuning["final"]["theta"] if stage == "adapted_tuned" else e.theta for e in equations]
+        return Stage(none, none, tuple(e.theta_tuning["retuned"]["theta"] for e in equations))
+    theta = [e.theta_tuning["adapted_retuned"]["theta"] if stage == "adapted_retuned" else e.theta for e in equations]
     return Stage(tuple(e.adjustments for e in equations), tuple(e.exponents for e in equations), tuple(theta))
 
 
@@ -70,7 +70,7 @@ def report_stage(models: list, stage: str | tuple[str, ...]) -> Stage:
     for s in stages:
         if s not in REPORT_STAGES:
             raise ConfigError("stage", f"unknown stage {s!r} of a diagnosis (choose from "
-                                       f"{', '.join(REPORT_STAGES + ('final',))})")
+                                       f"{', '.join(REPORT_STAGES + ('accepted',))})")
     adjustments, exponents, thetas = [], [], []
     for model, s in zip(models, stages):
         row = REPORT_STAGES.index(s)
@@ -127,18 +127,18 @@ class StateModel(nn.Module):
 
     @classmethod
     def from_report(cls, report, stage: str = "adapted", dtype=torch.float64) -> "StateModel":
-        """The model of ``stage`` of a :class:`~msam_torch.diagnose.GapReport`: its equations
-        extended by the fitted effect term (the diagnosis's models, Eq. 9); ``final``: the model
+        """The model of ``stage`` of a :class:`~msam_torch.diagnosis.GapReport`: its equations
+        extended by the fitted effect term (the diagnosis's models, Eq. 9); ``accepted``: the model
         with every effect added in turn (``report.in_turn``)."""
         if not report.models:
             raise ConfigError("stage", "this report holds no fitted models (a report read back from JSON, "
                                        "or a diagnosis by simulation): diagnose again to get them")
         config, models = load_config(report.config), report.models
-        if stage == "final":
-            if not report.final:
+        if stage == "accepted":
+            if not report.accepted:
                 raise ConfigError("stage", "no effects were added in turn (diagnose with max_effects above 1): "
                                            "the adapted model is the final one")
-            config, models, stage = load_config(report.final["config"]), report.final["models"], report.final["stages"]
+            config, models, stage = load_config(report.accepted["config"]), report.accepted["models"], report.accepted["stages"]
         sim = config.adaptation.simulation
         extended = tuple(m.equation for m in models)
         spec = replace(to_spec(config.model), equations=extended)

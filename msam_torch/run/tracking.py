@@ -99,7 +99,7 @@ class TensorBoardTracker:
         from torch.utils.tensorboard.summary import hparams
 
         options = {k: v for k, v in flatten(config).items() if k.startswith(("adaptation.", "data."))}
-        metrics = {f"{eq.target}/final/{k}": float(v) for eq in result.equations for k, v in eq.final.items()}
+        metrics = {f"{eq.target}/adapted/{k}": float(v) for eq in result.equations for k, v in eq.adapted.items()}
         for summary in hparams(options, metrics):
             self.writer.file_writer.add_summary(summary)
         for tag, value in metrics.items():
@@ -110,7 +110,7 @@ class TensorBoardTracker:
         ``exponent``, the held-out ``improvement`` and the bootstrap ``win_frequency``
         (``diagnosis/<target>/...``); per record the free-run NRMSE of each model
         (``diagnosis/free_run_nrmse/<record>/<model>``); the report's figures
-        (:class:`~msam_torch.diagnose.report.figures.Figure`) as images (``diagnosis/<figure>``)."""
+        (:class:`~msam_torch.diagnosis.report.figures.Figure`) as images (``diagnosis/<figure>``)."""
         from matplotlib.image import imread
 
         self.writer.add_text("diagnosis/summary", "\n".join("    " + line for line in str(report).splitlines()))

@@ -66,9 +66,9 @@ def concat_fits(fits: list[Fit]) -> Fit:
     if len(fits) == 1:
         return fits[0]
     join = lambda name: None if getattr(fits[0], name) is None else torch.cat([getattr(f, name) for f in fits])
-    joined = {f.name: join(f.name) for f in dataclasses.fields(Fit) if f.name not in ("choices", "start", "final")}
+    joined = {f.name: join(f.name) for f in dataclasses.fields(Fit) if f.name not in ("choices", "start", "adapted")}
     measures = lambda name: {k: torch.cat([getattr(f, name)[k] for f in fits]) for k in getattr(fits[0], name)}
-    return Fit(choices=fits[0].choices, start=measures("start"), final=measures("final"), **joined)
+    return Fit(choices=fits[0].choices, start=measures("start"), adapted=measures("adapted"), **joined)
 
 
 def run_trials(config: Config, trials: Sequence[Trial], seed: int, base_dir: str | Path = ".",

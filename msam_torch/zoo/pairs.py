@@ -1,5 +1,5 @@
 """Zoo cases withholding two effects at once, for the diagnosis of several effects in turn
-(:mod:`msam_torch.diagnose.effects.multi`).
+(:mod:`msam_torch.diagnosis.effects.multi`).
 
 ``generate_pair(seed)`` draws a system of any domain that holds two catalogued effects a diagnosis
 can tell apart (:func:`~.effects.separable`), withholds both, each sized like a single withheld

@@ -1,4 +1,4 @@
-"""Scoring a diagnosis (a :class:`~msam_torch.diagnose.GapReport`, or its JSON dict) against a
+"""Scoring a diagnosis (a :class:`~msam_torch.diagnosis.GapReport`, or its JSON dict) against a
 zoo case's truth.
 
 - strict top-1: the withheld effect's equation says "gap explained by" the truth's name, on the
@@ -12,7 +12,7 @@ zoo case's truth.
 - held-out free runs: the re-fitted start no worse than the nominal one (1 % slack), and a
   *diverged* run (NRMSE not finite or above :data:`DIVERGED`) beside a verdict that is not
   "inconclusive": of any model, and of the model the verdict rests on
-  (:func:`~msam_torch.diagnose.compare.verdict.rests_on`);
+  (:func:`~msam_torch.diagnosis.compare.verdict.rests_on`);
 - cases withholding several effects (:mod:`.pairs`): how many of them the effects added in turn
   (the report's ``in_turn``) found, in any order; every case: the *spurious* effects added in turn
   (matching no withheld effect).
@@ -22,9 +22,9 @@ from __future__ import annotations
 import math
 import re
 
-from msam_torch.diagnose.catalogue.entries import TOLERANCE  # the exponent tolerance of a right functional form
-from msam_torch.diagnose.compare.comparison import DIVERGED  # the held-out free-run NRMSE beyond which a run has diverged
-from msam_torch.diagnose.compare.verdict import Verdict, rests_on
+from msam_torch.diagnosis.catalogue.entries import TOLERANCE  # the exponent tolerance of a right functional form
+from msam_torch.diagnosis.compare.comparison import DIVERGED  # the held-out free-run NRMSE beyond which a run has diverged
+from msam_torch.diagnosis.compare.verdict import Verdict, rests_on
 
 THETA_TOLERANCE = 0.03
 NO_WORSE_SLACK = 0.01

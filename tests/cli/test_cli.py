@@ -19,7 +19,7 @@ def test_run_prints_the_adapted_equation_and_writes_result_json(tmp_path, capsys
     assert [r["adjustments"] for r in eq["ranking"]][0] == ["abs(x_dot)", "abs(x)"]
     assert len(eq["ranking"]) == 4 and all({"fitness", "exponents", "diverged"} <= set(r) for r in eq["ranking"])
     assert eq["ranking"][0]["fitness"] >= max(r["fitness"] for r in eq["ranking"])
-    assert set(eq["start"]) == set(eq["final"]) == {"fitness", "sum_abs_error", "rho"}
+    assert set(eq["start"]) == set(eq["adapted"]) == {"fitness", "sum_abs_error", "rho"}
     assert not (tmp_path / "tensorboard").exists()
 
 

@@ -6,7 +6,7 @@ import torch
 from msam_torch.run.adapt import adapt
 from msam_torch.engine.candidates import EquationData
 from msam_torch.config.schema import load_config
-from msam_torch.signals.derivatives import METHODS, choose_window, cutoff_frequency, estimate, noise_level
+from msam_torch.data.derivatives import METHODS, choose_window, cutoff_frequency, estimate, noise_level
 from msam_torch.errors import ConfigError, DataError
 from msam_torch.data.systems import SYSTEMS, measure
 from msam_torch.engine.tuning import tune_adapted, tune_start
@@ -119,8 +119,8 @@ def test_ranges_by_time_and_index_and_held_out_measures(tmp_path):
     data = result.data
     assert data["samples"] == int((frame["t"] <= 2.0).sum()) and data["validation"]["samples"] == int((frame["t"] > 2.0).sum())
     held = result.equations[0].validation
-    assert set(held) == {"start", "start_tuned", "final", "final_tuned"}
-    assert held["final"]["sum_abs_error"] < 1e-6 * held["start"]["sum_abs_error"]  # the true form extrapolates
+    assert set(held) == {"start", "retuned", "adapted", "adapted_retuned"}
+    assert held["adapted"]["sum_abs_error"] < 1e-6 * held["start"]["sum_abs_error"]  # the true form extrapolates
     config["data"].update(train={"start": 100, "stop": 299, "by": "index"}, validation=None)
     assert adapt(config, QUICK, data=frame).data["samples"] == 200
 
@@ -142,17 +142,17 @@ def test_theta_re_estimation_recovers_the_true_theta_and_reveals_the_nominal_err
     tuning = result.equations[0].theta_tuning
     nominal = spec.theta(eq, result.data["nominal_parameters"])
     expected = ((nominal - true).abs() / true.abs()).tolist()
-    assert tuning["final"]["nominal_error"] == pytest.approx(expected, rel=1e-6)
-    assert tuning["final"]["theta"] == pytest.approx(true.tolist(), rel=1e-6)
+    assert tuning["adapted_retuned"]["nominal_error"] == pytest.approx(expected, rel=1e-6)
+    assert tuning["adapted_retuned"]["theta"] == pytest.approx(true.tolist(), rel=1e-6)
 
 
 def test_tuned_start_is_used_when_asked():
     plain = adapt("configs/harmonic.yaml", QUICK + ["data.parametric_error=1.0"])
     tuned = adapt("configs/harmonic.yaml", QUICK + ["data.parametric_error=1.0", "adaptation.tune_theta=true"])
     a, b = plain.equations[0], tuned.equations[0]
-    assert a.theta_tuning["start"]["theta"] == pytest.approx(b.theta_tuning["start"]["theta"])
-    assert b.start["sum_abs_error"] == pytest.approx(b.theta_tuning["start"]["sum_abs_error"])
-    assert b.start_equation == b.theta_tuning["start"]["equation"] != a.start_equation
+    assert a.theta_tuning["retuned"]["theta"] == pytest.approx(b.theta_tuning["retuned"]["theta"])
+    assert b.start["sum_abs_error"] == pytest.approx(b.theta_tuning["retuned"]["sum_abs_error"])
+    assert b.start_equation == b.theta_tuning["retuned"]["equation"] != a.start_equation
 
 
 def test_parquet_files_load_like_csv(tmp_path):

@@ -1,9 +1,11 @@
 """Property tests (issue 18): any expression text and any ``key=value`` override either gives a
 value or raises :class:`~msam_torch.errors.MSAMError`, never another exception.
-``experiments/input_properties.py`` runs the same checks on 10^4 examples each."""
+``python -m experiments.suites.input_properties`` runs this file with ``MSAM_PROPERTY_EXAMPLES`` set
+(10^4 examples of each kind)."""
 from __future__ import annotations
 
 import math
+import os
 
 import torch
 from hypothesis import HealthCheck, given, settings
@@ -16,7 +18,8 @@ from tests.helpers import CONFIGS
 from msam_torch.config.to_spec import to_spec
 
 NAMES = ("c", "m", "x")
-SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+EXAMPLES = int(os.environ.get("MSAM_PROPERTY_EXAMPLES", "150"))  # the experiment asks for more
+SETTINGS = settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 KEYS = ["data.seed", "data.noise", "data.window", "data.parametric_error", "data.derivatives", "data.train.start",
         "model.parameters.m", "model.parameters.c", "model.states", "adaptation.device", "adaptation.damping",
         "adaptation.round_robin_steps", "adaptation.step_size", "adaptation.simulation.initial_guess.x",

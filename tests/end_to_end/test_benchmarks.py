@@ -1,5 +1,5 @@
 """The benchmark data slices follow the official splits, and the naive starting configs of
-issue 16 load, stay plain and run through msam diagnose / msam run (experiments/benchmarks.py)."""
+issue 16 load, stay plain and run through msam diagnose / msam run (experiments/realdata/benchmarks.py)."""
 from pathlib import Path
 
 import pytest
@@ -7,7 +7,7 @@ import pytest
 from msam_torch.data import datasets
 from msam_torch.run.adapt import adapt
 from msam_torch.config.schema import AdaptationConfig, SimulationConfig, load_config
-from msam_torch.diagnose import NOT_CATALOGUED, DiagnoseOptions, diagnose
+from msam_torch.diagnosis import NOT_CATALOGUED, DiagnoseOptions, diagnose
 from msam_torch.config.to_spec import to_spec
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"

@@ -47,7 +47,7 @@ def test_a_second_run_refuses_and_ctrl_c_stops_the_first_keeping_its_best_state(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # its lock is gone, its best state written
     result = json.loads((out / "result.json").read_text())
     assert result["data"]["stopped"] == {"interrupted": True}
-    assert result["equations"][0]["final"]["fitness"] >= result["equations"][0]["start"]["fitness"]
+    assert result["equations"][0]["adapted"]["fitness"] >= result["equations"][0]["start"]["fitness"]
 
 
 def test_a_closed_stdout_is_one_line_and_status_2_with_the_files_written(tmp_path):
@@ -87,4 +87,4 @@ def test_max_seconds_stops_at_the_next_step_keeping_the_best_state(tmp_path, cap
     assert main(["run", HARMONIC, "--out", str(out), "--no-tensorboard", "--max-seconds", "1",
                  "adaptation.round_robin_steps=1000000"]) == 0
     eq = json.loads((out / "result.json").read_text())["equations"][0]
-    assert eq["final"]["fitness"] > eq["start"]["fitness"] and eq["exponents"] != [0.0, 0.0, None]
+    assert eq["adapted"]["fitness"] > eq["start"]["fitness"] and eq["exponents"] != [0.0, 0.0, None]

@@ -13,10 +13,10 @@ import torch
 from msam_torch.cli.main import main
 from msam_torch.config.schema import DataConfig, load_config
 from msam_torch.data.loading import build_dataset
-from msam_torch.diagnose import DiagnoseOptions, EquationGap, GapReport, Verdict, diagnose
-from msam_torch.diagnose.effects.adapted import adapted_components
-from msam_torch.diagnose.effects.hypotheses import encode, enumerate_hypotheses, extended_equation, offset_testable
-from msam_torch.diagnose.effects.multi import in_turn
+from msam_torch.diagnosis import DiagnoseOptions, EquationGap, GapReport, Verdict, diagnose
+from msam_torch.diagnosis.effects.adapted import adapted_components
+from msam_torch.diagnosis.effects.hypotheses import encode, enumerate_hypotheses, extended_equation, offset_testable
+from msam_torch.diagnosis.effects.multi import in_turn
 from msam_torch.errors import ConfigError
 from msam_torch.simulation.equations import EquationModel
 from msam_torch.data.systems import WITHHELD as SUITE, System, measure, multisine
@@ -84,14 +84,14 @@ def test_two_withheld_effects_are_both_found_in_turn(case):
         assert e["free_run_nrmse"]["after"] < e["free_run_nrmse"]["before"]
     # the second step starts from the first's adapted structure, and the final model is the second's
     assert f"**{effects[0]['exponent']:.6g}" in effects[1]["starting_equation"]
-    assert all(f"**{e['exponent']:.6g}" in r.in_turn["final_model"]["x_ddot"] for e in effects)  # both in
+    assert all(f"**{e['exponent']:.6g}" in r.in_turn["accepted_model"]["x_ddot"] for e in effects)  # both in
     assert effects[1]["free_run_nrmse"]["after"] < 0.05
     # the final model as a module holds both effects and simulates the held-out record as closely
     held_out = datasets(case)[1]
     t, u, x = held_out.t, held_out.signals["u"], held_out.measured["x"]
     run = lambda stage: r.model(stage).simulate(t, {"u": u}, torch.tensor([float(x[0]), 0.0], dtype=torch.float64))[:, 0]
     nrmse = lambda stage: float((run(stage).detach() - x).square().mean().sqrt() / x.std())
-    assert nrmse("final") < 0.05 < nrmse("adapted")
+    assert nrmse("accepted") < 0.05 < nrmse("adapted")
 
 
 def test_an_offset_and_a_cubic_stiffness_are_both_found_in_turn():
@@ -107,7 +107,7 @@ def test_an_offset_and_a_cubic_stiffness_are_both_found_in_turn():
             assert e["exponent"] is None
         else:  # accepted first, with the offset missing: the exponent it was fitted with (as above)
             assert e["exponent"] + 1.0 == pytest.approx(3.0, abs=0.35)
-    constants = re.findall(r"([+-]) ([0-9.e+-]+)(?= [+-] |$)", r.in_turn["final_model"]["x_ddot"])  # a bare number
+    constants = re.findall(r"([+-]) ([0-9.e+-]+)(?= [+-] |$)", r.in_turn["accepted_model"]["x_ddot"])  # a bare number
     assert len(constants) == 1 and float("".join(constants[0])) == pytest.approx(0.3, rel=0.03)
 
 

@@ -76,7 +76,7 @@ def test_trainer_skips_diverged_candidates_in_the_ranking():
     data, theta, theta_fixed, _ = equation_data("harmonic")
     fit = Trainer(StepOptions(gamma_limit=1.5), 15, 5).fit(data, theta.unsqueeze(0), theta_fixed.unsqueeze(0))
     assert bool(fit.diverged.any())  # x|x|^2 needs gamma 2 > the limit
-    assert torch.isfinite(fit.final["fitness"]).all()
+    assert torch.isfinite(fit.adapted["fitness"]).all()
 
 
 def test_the_loop_ends_once_a_step_moves_no_candidate():
@@ -88,7 +88,7 @@ def test_the_loop_ends_once_a_step_moves_no_candidate():
         result = adapt(CONFIGS / "harmonic.yaml", ["adaptation.scaling=gauss_newton", "adaptation.step_size=line_search",
                                                  "adaptation.round_robin_steps=2", f"adaptation.refinement_steps={limit}"],
                        on_trainer=lambda trainer, eq: trainer.add_callback("refinement_step", lambda t, **k: events.append(1)))
-        return len(events), result.equations[0].exponents, result.equations[0].final["fitness"]
+        return len(events), result.equations[0].exponents, result.equations[0].adapted["fitness"]
 
     short, long = run(100), run(300)
     assert short == long and short[0] == 10

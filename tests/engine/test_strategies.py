@@ -9,13 +9,14 @@ import pytest
 import torch
 
 from msam_torch.run.adapt import adapt
-from msam_torch.config.schema import Config, load_config
-from msam_torch.signals.derivatives import ESTIMATORS, Auto, Exact, SavitzkyGolay, estimate
+from msam_torch.config.schema import load_config
+from msam_torch.data.derivatives import ESTIMATORS, Auto, Exact, SavitzkyGolay, estimate
 from msam_torch.errors import ConfigError
 from msam_torch.run.evaluators import EVALUATORS
-from msam_torch.run.plan import make_trainer, prepare
+from msam_torch.run.plan import config_schema, make_trainer, prepare
 from msam_torch.engine.values import StepOptions
-from msam_torch.engine.step_rules import STEP_SIZES, Eq20, LineSearch, ThetaRule
+from msam_torch.engine.step_rules import STEP_SIZES, Eq20, LineSearch
+from msam_torch.config.schema import ThetaRule
 from msam_torch.engine.trainer import Algebraic
 from tests.helpers import CONFIGS, equation_data, measured_case, simulated
 
@@ -23,14 +24,17 @@ QUICK = ["adaptation.round_robin_steps=3", "adaptation.refinement_steps=2"]
 
 
 def outcome(result):
-    return [(e.equation, e.exponents, e.final["fitness"]) for e in result.equations]
+    return [(e.equation, e.exponents, e.adapted["fitness"]) for e in result.equations]
 
 
 @pytest.mark.parametrize("key,registry", [("data.derivatives", ESTIMATORS), ("adaptation.step_size", STEP_SIZES),
                                           ("adaptation.evaluation", EVALUATORS)])
 def test_unknown_names_are_config_errors_listing_the_registry(key, registry):
+    """A name is looked up when the config is planned (before any data is read); a value that is
+    neither a name nor an object fails on loading."""
+    config = load_config(CONFIGS / "harmonic.yaml", [f"{key}=nonesuch"])
     with pytest.raises(ConfigError, match=rf"^{key}: .*unknown .* 'nonesuch' \(known: {', '.join(registry.names)}\)"):
-        load_config(CONFIGS / "harmonic.yaml", [f"{key}=nonesuch"])
+        prepare(config)
     with pytest.raises(ConfigError, match=rf"^{key}: .*got int"):
         load_config(CONFIGS / "harmonic.yaml", [f"{key}=3"])
     with pytest.raises(ConfigError, match="adaptation.theta"):
@@ -49,10 +53,11 @@ class Thinned:
 
 def test_a_registered_estimator_joins_the_schema_and_runs_like_a_built_in(monkeypatch):
     monkeypatch.setitem(ESTIMATORS._factories, "thinned", Thinned)
-    schema = Config.model_json_schema()["$defs"]["DataConfig"]["properties"]["derivatives"]
+    schema = config_schema()["$defs"]["DataConfig"]["properties"]["derivatives"]
     assert "thinned" in schema["enum"] and "savgol" in schema["enum"]
+    assert config_schema()["$defs"]["AdaptationConfig"]["properties"]["evaluation"]["enum"] == ["algebraic", "simulation"]
     with pytest.raises(ConfigError, match="known: .*thinned"):
-        load_config(CONFIGS / "harmonic.yaml", ["data.derivatives=wavelet"])
+        prepare(load_config(CONFIGS / "harmonic.yaml", ["data.derivatives=wavelet"]))
     config, frame = measured_case("harmonic", every=4)
     config["data"] = {"time": "t", "columns": {"x": "x", "u": "u"}, "derivatives": "thinned"}
     named = adapt(config, QUICK, data=frame[["t", "x", "u"]])

@@ -10,7 +10,7 @@ from msam_torch import adapt
 from msam_torch.engine import weak_form as weak
 from msam_torch.config.schema import load_config
 from msam_torch.data.loading import Dataset
-from msam_torch.signals.derivatives import SavitzkyGolay
+from msam_torch.data.derivatives import SavitzkyGolay
 from msam_torch.run.estimation import choose, record_band, refined, regressor_band
 from msam_torch.data.systems import System, measure, multisine
 from msam_torch.engine.weak_form import HALF_AMPLITUDE, SHORTEST, resolves

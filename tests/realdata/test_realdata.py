@@ -4,13 +4,14 @@ from pathlib import Path
 import pytest
 
 from msam_torch.data import datasets
-from experiments.realdata import force_error, named_laws, retuned_at, retuned_start, rival
+# to move into the package (experiments/README.md, "Tests and experiments")
+from experiments.realdata.realdata import force_error, named_laws, retuned_at, retuned_start, rival
 from msam_torch.run.adapt import adapt
 from msam_torch.engine.candidates import EquationData
 from msam_torch.config.schema import load_config
 from msam_torch.data.loading import load_datasets
 from msam_torch.simulation.free_run import free_run_models
-from msam_torch.diagnose import NOT_CATALOGUED, Verdict, diagnose
+from msam_torch.diagnosis import NOT_CATALOGUED, Verdict, diagnose
 from msam_torch.errors import DataError
 from msam_torch.zoo.score import parse_equation
 from msam_torch.config.to_spec import to_spec
@@ -42,7 +43,7 @@ def test_configs_point_at_carried_files():
 
 @pytest.mark.slow
 def test_emps_names_coulomb_friction_on_a_slice():
-    """EMPS, the first 6 s of the estimation record, as experiments/realdata.py reads it: the split
+    """EMPS, the first 6 s of the estimation record, as experiments/realdata/realdata.py reads it: the split
     viscous term becomes viscous plus a law the catalogue names Coulomb friction; theta re-estimated
     at the catalogue exponent (-1) gives Fc within 10 % of the published 20.39 N and M near 95.1 kg;
     the relative force error of the inverse model drops from above 15 % to below 6 %."""
@@ -89,7 +90,7 @@ def test_emps_from_the_naive_config_is_a_tie_with_coulomb_friction_not_a_name():
 @pytest.mark.slow
 def test_silverbox_names_cubic_stiffness_on_a_slice():
     """Silverbox, 4,000 samples of the multisine record for training and the next 2,000 held out,
-    as experiments/realdata.py reads it: the second stiffness copy becomes a law the catalogue
+    as experiments/realdata/realdata.py reads it: the second stiffness copy becomes a law the catalogue
     names hardening cubic stiffness, ahead of every candidate naming another law; the held-out
     free run of the adapted model is at least 4x closer than the theta-retuned linear model's."""
     config = load_config(CONFIGS / "silverbox.yaml", [

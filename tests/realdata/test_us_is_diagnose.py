@@ -3,7 +3,7 @@ the validation sum|eps| of the starting, theta re-fitted and adapted models."""
 from dataclasses import replace
 from pathlib import Path
 
-from msam_torch.diagnose import DiagnoseOptions, diagnose
+from msam_torch.diagnosis import DiagnoseOptions, diagnose
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "us_is.yaml"
 

@@ -8,7 +8,7 @@ def test_harmonic_selects_both_adjustments_with_exact_exponents():
     eq = adapt(CONFIGS / "harmonic.yaml").equations[0]
     assert eq.adjustments == ["abs(x_dot)", "abs(x)", None]
     assert abs(eq.exponents[0] - 1.0) < 0.01 and abs(eq.exponents[1] - 2.0) < 0.01
-    assert eq.final["sum_abs_error"] < 1e-6 * eq.start["sum_abs_error"]
+    assert eq.adapted["sum_abs_error"] < 1e-6 * eq.start["sum_abs_error"]
     assert eq.equation == "x_ddot = -26.13 x_dot|x_dot|^1.000 - 346.7 x|x|^2.000 + 0.002667 u"
 
 

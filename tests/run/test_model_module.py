@@ -51,12 +51,12 @@ def _printed(text: str):
     return sympy.Symbol(target), rhs
 
 
-@pytest.mark.parametrize("stage", ["adapted", "start", "retuned", "adapted_tuned"])
+@pytest.mark.parametrize("stage", ["adapted", "start", "retuned", "adapted_retuned"])
 def test_to_sympy_round_trips_the_printed_equation(harmonic, stage):
     result, _ = harmonic
     entry = result.equations[0]
-    printed = {"adapted": entry.equation, "start": None, "retuned": entry.theta_tuning["start"]["equation"],
-               "adapted_tuned": entry.theta_tuning["final"]["equation"]}[stage]
+    printed = {"adapted": entry.equation, "start": None, "retuned": entry.theta_tuning["retuned"]["equation"],
+               "adapted_retuned": entry.theta_tuning["adapted_retuned"]["equation"]}[stage]
     (equation,) = result.model(stage).to_sympy()
     if printed is None:  # the nominal start: theta = -c/m, -k/m, 1/m of the config
         x, x_dot, u = sympy.symbols("x x_dot u")
@@ -103,7 +103,7 @@ def test_table_state_dict_and_dtype(harmonic):
 def test_unknown_stage_and_missing_inputs_name_the_place(harmonic):
     result, _ = harmonic
     with pytest.raises(ConfigError, match="stage"):
-        result.model("final")
+        result.model("accepted")
     with pytest.raises(ConfigError, match="with_inputs"):
         result.model()(torch.tensor(0.0), torch.zeros(2, dtype=torch.float64))
 
@@ -125,15 +125,15 @@ def test_a_run_judged_by_simulation_gives_its_retuned_stage(harmonic):
         **result.data, "simulation": [{"retuned_theta": {"x_ddot": retuned}}]})
     assert simulated.model("retuned").to_frame()["theta"].tolist() == retuned
     assert simulated.model().to_frame()["theta"].tolist() == pytest.approx(result.equations[0].theta, rel=1e-12)
-    with pytest.raises(ConfigError, match="adapted_tuned"):
-        simulated.model("adapted_tuned")
+    with pytest.raises(ConfigError, match="adapted_retuned"):
+        simulated.model("adapted_retuned")
 
 
 @pytest.mark.slow
 def test_print_shows_the_equations_without_a_diagnosis_unadjusted_copies(harmonic):
     """``print(model)`` shows each equation to four digits (before: ``StateModel()``); a diagnosis's
     model prints no switched-off copy, zero constant or ``|1|^0`` factor (only its four terms)."""
-    from msam_torch.diagnose import DiagnoseOptions, diagnose
+    from msam_torch.diagnosis import DiagnoseOptions, diagnose
 
     result, _ = harmonic
     model = result.model("adapted")

@@ -33,7 +33,7 @@ def test_sode3_tensorboard_has_named_candidates_a_layout_and_hparams(tmp_path):
     assert "x1_dot/round_robin/fitness/x3-x3-x3" in tags
     assert len([t for t in tags if t.startswith("x1_dot/round_robin/fitness/")]) == 27
     assert not any("/c0" in t for t in tags)
-    assert {f"x{i}_dot/final/fitness" for i in (1, 2, 3)} <= tags
+    assert {f"x{i}_dot/adapted/fitness" for i in (1, 2, 3)} <= tags
 
     layout = layout_pb2.Layout()
     layout.ParseFromString(events.Tensors("custom_scalars__config__")[0].tensor_proto.string_val[0])
@@ -48,7 +48,7 @@ def test_sode3_tensorboard_has_named_candidates_a_layout_and_hparams(tmp_path):
     names = {h.name for h in experiment.experiment.hparam_infos}
     assert {"adaptation.round_robin_steps", "adaptation.step_size", "data.system"} <= names
     assert {m.name.tag for m in experiment.experiment.metric_infos} == {
-        f"x{i}_dot/final/{k}" for i in (1, 2, 3) for k in ("fitness", "sum_abs_error", "rho")}
+        f"x{i}_dot/adapted/{k}" for i in (1, 2, 3) for k in ("fitness", "sum_abs_error", "rho")}
     session = plugin_data_pb2.HParamsPluginData()
     session.ParseFromString(content["_hparams_/session_start_info"])
     assert session.session_start_info.hparams["adaptation.round_robin_steps"].number_value == 2

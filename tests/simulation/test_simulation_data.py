@@ -11,7 +11,7 @@ import torch
 from msam_torch.run.adapt import adapt, make_trainer
 from msam_torch.config.schema import load_config
 from msam_torch.data.loading import Dataset
-from msam_torch.diagnose import diagnose
+from msam_torch.diagnosis import diagnose
 from msam_torch.errors import ConfigError
 from msam_torch.simulation.ode import build_model
 from msam_torch.simulation.configured import load_records, output_states
@@ -43,7 +43,7 @@ def test_adapt_uses_a_data_frame_and_the_trainer_factory(tmp_path):
     assert len(built) == 1 and from_frame.data["source"] == "data frame"
     for a, b in zip(from_file.equations, from_frame.equations):
         assert a.equation == b.equation
-        assert a.final["fitness"] == pytest.approx(b.final["fitness"], rel=1e-12)
+        assert a.adapted["fitness"] == pytest.approx(b.adapted["fitness"], rel=1e-12)
     with pytest.raises(ConfigError, match="trainer_factory"):
         adapt(TANKS, SHORT, base_dir=tmp_path, trainer_factory=lambda config: object())
 

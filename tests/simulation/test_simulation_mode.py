@@ -158,8 +158,8 @@ def test_a_diagnosis_whose_candidates_all_diverged_says_so_and_blames_no_candida
     """Every candidate of an equation diverged in the adaptation by simulation: the equation is
     inconclusive because nothing was fitted, with the damped step to try (before, "the candidates
     do not express" the gap, which no fit had tested)."""
-    from msam_torch.diagnose import DiagnoseOptions, Verdict
-    from msam_torch.diagnose.stages.simulated import _equation_gap
+    from msam_torch.diagnosis import DiagnoseOptions, Verdict
+    from msam_torch.diagnosis.stages.simulated import _equation_gap
     from msam_torch.run.result import EquationResult
 
     config = load_config(TANKS)
@@ -193,4 +193,4 @@ def test_a_measured_record_judged_by_simulation_gets_a_step_that_keeps_the_candi
                      base_dir=tmp_path).equations[0]
     assert damped.diverged == 0 and undamped.diverged == 4
     assert undamped.exponents[:2] == [0.0, 0.0]
-    assert damped.final["fitness"] > 20 * undamped.final["fitness"]
+    assert damped.adapted["fitness"] > 20 * undamped.adapted["fitness"]

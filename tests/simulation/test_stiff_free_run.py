@@ -8,8 +8,8 @@ import torch
 from scipy.integrate import solve_ivp
 
 from msam_torch.config.schema import load_config
-from msam_torch.diagnose import DiagnoseOptions, Verdict, diagnose
-from msam_torch.diagnose.compare.comparison import STABLE_SHARE
+from msam_torch.diagnosis import DiagnoseOptions, Verdict, diagnose
+from msam_torch.diagnosis.compare.comparison import STABLE_SHARE
 from msam_torch.simulation.equations import EquationModel
 from msam_torch.simulation.equations import fastest_decay
 from msam_torch.simulation.solver import STABILITY
@@ -81,7 +81,7 @@ def test_a_step_the_check_accepts_at_once_is_doubled_while_it_agrees(monkeypatch
     period on a slow oscillator (2 Hz resonance sampled at 100 Hz), the step is doubled while the
     runs at it and at twice it agree, up to half the sample period (twice that is the longest
     check run that meets every sample), and the exact model's free runs stay on the record."""
-    import msam_torch.diagnose.compare.comparison as compare
+    import msam_torch.diagnosis.compare.comparison as compare
 
     dt = 0.01
     t = np.arange(4000) * dt

@@ -5,10 +5,9 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from experiments.zoo import run_diagnosis
 from msam_torch.config.schema import load_config
-from msam_torch.diagnose import Verdict
-from msam_torch.diagnose.stages.structure import relevant
+from msam_torch.diagnosis import Verdict, diagnose
+from msam_torch.diagnosis.stages.structure import relevant
 from msam_torch.model.spec import split_derivative
 from msam_torch.zoo import DOMAINS, NULL_SHARE, SHARE_FLOOR, generate, plan, score, sindy
 from msam_torch.zoo.simulate import rms, unabsorbed
@@ -146,7 +145,7 @@ def test_diagnosis_on_a_null_and_a_torricelli_case(tmp_path):
     null = generate(7)
     assert null.truth["kind"] == "null" and null.metadata["noise"] == 0.0
     path = null.write(tmp_path / "null")
-    report = run_diagnosis(path, tmp_path / "null" / "train.csv", tmp_path / "null" / "validation.csv")
+    report = diagnose(path, data=tmp_path / "null" / "train.csv", validation=tmp_path / "null" / "validation.csv")
     figures = score.score(report, null.truth)
     assert report.verdict_kind is Verdict.NO_GAP and figures["no_gap"] and figures["theta_ok"]
     assert figures["own_run_diverged"] is False and figures["diverged_beside_verdict"] is False
@@ -154,7 +153,7 @@ def test_diagnosis_on_a_null_and_a_torricelli_case(tmp_path):
     tanks = generate(4)
     assert tanks.truth["name"] == "Torricelli outflow" and tanks.truth["targets"] == ["h2_dot"]
     path = tanks.write(tmp_path / "tanks")
-    report = run_diagnosis(path, tmp_path / "tanks" / "train.csv", tmp_path / "tanks" / "validation.csv")
+    report = diagnose(path, data=tmp_path / "tanks" / "train.csv", validation=tmp_path / "tanks" / "validation.csv")
     assert score.score(report, tanks.truth)["top1"]
 
 
@@ -170,7 +169,7 @@ def test_a_null_whose_residual_holds_only_irrelevant_structure_reads_no_gap(tmp_
     case = generate(13593)
     assert case.truth["kind"] == "null" and case.metadata["noise"] == 0.0
     path = case.write(tmp_path)
-    report = run_diagnosis(path, tmp_path / "train.csv", tmp_path / "validation.csv")
+    report = diagnose(path, data=tmp_path / "train.csv", validation=tmp_path / "validation.csv")
     current = next(g for g in report.equations if g.target == "i_dot")
     assert current.improvement["retuned_rmse"] < 1e-4 * current.improvement["target_rms"]
     assert current.checks.get("negligible") and current.checks["failed"] == [], current.checks
@@ -232,7 +231,7 @@ def test_outcome_classes_read_the_verdict_where_no_equation_is_flagged():
     """A null whose equations show no significant gap but whose verdict is inconclusive (a free-run
     check failed) is 'inconclusive', not 'no gap'; with the verdict 'no significant gap' it is
     'no gap'; a catalogued case likewise, and a flagged equation classes by its own verdict."""
-    from experiments.zoo import outcome
+    from experiments.suites.zoo import outcome  # to move: msam_torch.zoo.score (experiments/README.md)
 
     quiet = {"x_ddot": {"verdict": Verdict.NO_GAP.text()}}
     truth = lambda kind: {"kind": kind, "targets": ["x_ddot"], "name": "Coulomb friction"}

@@ -1,0 +1,1 @@
+"""Timings, memory and fault benchmarks, and the import-structure measure."""
