@@ -12,7 +12,7 @@ import jsonschema
 import pytest
 
 from msam_torch import DiagnoseOptions, adapt, diagnose
-from msam_torch.diagnosis.report.schema import gap_report_schema
+from msam_torch.diagnosis.report.json_schema import gap_report_schema
 from tests.diagnosis.test_diagnose import case_data
 from tests.helpers import measured_case
 
@@ -73,7 +73,7 @@ PUBLISHED = Path(__file__).resolve().parents[2] / "docs" / "gap_report.schema.js
 
 
 def test_the_published_schema_is_the_generated_one():
-    """``python -m msam_torch.diagnosis.report.schema > docs/gap_report.schema.json`` after a change of the types."""
+    """``python -m msam_torch.diagnosis.report.json_schema > docs/gap_report.schema.json`` after a change of the types."""
     assert json.loads(PUBLISHED.read_text()) == gap_report_schema()
 
 

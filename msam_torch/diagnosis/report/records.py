@@ -2,7 +2,7 @@
 :class:`~msam_torch.diagnosis.report.gap_report.EquationGap`'s record fields holds. Every key is
 optional (a record holds what its stage found); a number that is not finite is written as the
 string ``"inf"``, ``"-inf"`` or ``"nan"`` (JSON has none). The JSON schema of the whole report is
-:func:`msam_torch.diagnosis.report.schema.gap_report_schema`."""
+:func:`msam_torch.diagnosis.report.json_schema.gap_report_schema`."""
 from __future__ import annotations
 
 from typing import Optional, Union

@@ -1,6 +1,6 @@
 """The JSON schema of ``gap_report.json``, generated from the report's types
 (:class:`~msam_torch.diagnosis.report.gap_report.GapReport`, its equations and their
-:mod:`records <msam_torch.diagnosis.report.records>`); ``python -m msam_torch.diagnosis.report.schema``
+:mod:`records <msam_torch.diagnosis.report.records>`); ``python -m msam_torch.diagnosis.report.json_schema``
 prints it (the docs publish it as ``docs/gap_report.schema.json``)."""
 from __future__ import annotations
 
