@@ -17,42 +17,18 @@ from __future__ import annotations
 import argparse
 import math
 import statistics
-from dataclasses import replace
 
-import numpy as np
 import torch
 
-from msam_torch.config.schema import DataConfig, load_config
-from msam_torch.data.loading import build_dataset
 from msam_torch.diagnosis import diagnose
-from msam_torch.data.systems import SYSTEMS, WITHHELD, measure
-from msam_torch.config.to_spec import to_spec
+from msam_torch.data.withheld import withheld_records
 
 CASE = "msd_coulomb"
 NOISE = 0.01
 
 
-def records(length: float, faster: int, case: str = CASE, noise: float = NOISE) -> tuple:
-    """Training and held-out datasets of a withheld-effect ``case``, ``length`` times the bundled
-    record's duration, sampled ``faster`` times faster, ``noise`` (a share of each measured state's
-    standard deviation) added."""
-    w = WITHHELD[case]
-    spec = to_spec(load_config({"model": w.model}).model)
-    rng = np.random.default_rng(0)
-    out = []
-    for name in (w.system, w.held_out):
-        base = SYSTEMS[name]
-        system = replace(base, samples=int(round((base.samples - 1) * length * faster)) + 1, t_end=base.t_end * length)
-        sim = {k: v.numpy() for k, v in measure(system, rtol=1e-8, atol=1e-10).items()}
-        measured = {k: sim[k] + (0 if k in system.inputs else noise * sim[k].std() * rng.standard_normal(sim[k].size))
-                    for k in system.measured}
-        out.append(build_dataset(sim["t"], measured, DataConfig(derivatives="savgol"), spec, {"source": name},
-                                 torch.float64))
-    return w, out
-
-
 def run(length: float, faster: int, repeats: int) -> dict:
-    w, (train, held_out) = records(length, faster)
+    w, (train, held_out) = withheld_records(length, faster)
     config = {"model": w.model, "data": {"parametric_error": 0.2, "seed": 1}}
     reports = [diagnose(config, data=train, validation=held_out) for _ in range(repeats)]
     g = reports[0].equations[0]

@@ -20,7 +20,6 @@ load average is printed beside the time because the machine may be shared.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import re
@@ -30,36 +29,16 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
-import torch
 import yaml
-from scipy.interpolate import BPoly
 
-from msam_torch.data.systems import SYSTEMS, WITHHELD, measure
+from msam_torch.data.systems import WITHHELD
+from msam_torch.data.withheld import finer_records
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
 LIMIT_SECONDS, LIMIT_BYTES = 300.0, 4 * 2**30
 PROGRESS = re.compile(r"\(\d+ s(, about \d+ s left)?\)$")
-
-
-def records(case: str, seconds: float, small: int, rows: int, noise: float, seed: int) -> dict[int, pd.DataFrame]:
-    """The small record (the simulation grid) and the large one (the same trajectory, finer)."""
-    effect = WITHHELD[case]
-    system = dataclasses.replace(SYSTEMS[effect.system], t_end=seconds, samples=small)
-    truth = {k: v.numpy() for k, v in measure(system).items()}
-    rng = np.random.default_rng(seed)
-    out = {}
-    for n in (small, rows):
-        if n == small:
-            t, x = truth["t"], truth["x"]
-        else:
-            t = np.linspace(0.0, seconds, n)
-            x = BPoly.from_derivatives(truth["t"], np.stack([truth["x"], truth["x_dot"], truth["x_ddot"]], -1))(t)
-        u = system.inputs["u"](torch.from_numpy(t)).numpy()
-        out[n] = pd.DataFrame({"t": t, "x": x + noise * x.std() * rng.standard_normal(n), "u": u})
-    return out
 
 
 def progress(lines: list[str]) -> int:
@@ -119,7 +98,7 @@ def main() -> None:
     parser.add_argument("--keep", help="folder for the records and reports (default: a temporary one, removed)")
     args = parser.parse_args()
     made = time.perf_counter()
-    frames = records(args.case, args.seconds, args.small, args.rows, args.noise, args.seed)
+    frames = finer_records(args.case, args.seconds, args.small, args.rows, args.noise, args.seed)
     print(f"{args.case}: {args.seconds:g} time units, records of {args.small} and {args.rows} rows generated in "
           f"{time.perf_counter() - made:.0f} s; {os.cpu_count()} cores")
     with tempfile.TemporaryDirectory(prefix="msam-big-csv-") as scratch:

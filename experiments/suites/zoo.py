@@ -37,7 +37,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import torch  # noqa: E402
 
 from msam_torch.engine.allocator import keep_freed_memory  # noqa: E402
-from msam_torch.diagnosis import Verdict, diagnose  # noqa: E402
+from msam_torch.diagnosis import diagnose  # noqa: E402
 from msam_torch.run.result import _finite  # noqa: E402
 from msam_torch.zoo import DOMAINS, generate, score, sindy  # noqa: E402
 
@@ -188,48 +188,6 @@ def effect_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def outcome(row: dict) -> str:
-    """The class of our answer on one case (the failure classes of the report)."""
-    ours, truth = row["ours"], row["truth"]
-    if "error" in ours:
-        return "error"
-    verdicts = {t: e["verdict"] for t, e in ours["equations"].items()}
-    flagged = [t for t, v in verdicts.items() if v != Verdict.NO_GAP.text()]
-    named = [t for t, v in verdicts.items() if score.explained(v)]
-    undecided = all(verdicts[t] == Verdict.INCONCLUSIVE.text() for t in flagged)
-    no_gap = ours["verdict"] == Verdict.NO_GAP.text()  # where no equation is flagged, the verdict tells
-    if truth["kind"] != "catalogued":
-        return (("no gap" if no_gap else "inconclusive") if not flagged else "named an effect" if named
-                else "inconclusive" if undecided else "gap, not explained")
-    if ours["top1"]:
-        return "top-1"
-    targets = truth["targets"]
-    if not any(t in flagged for t in targets):
-        return ("another equation flagged, not the truth's" if flagged else "no significant gap" if no_gap
-                else "inconclusive")
-    target = targets[0]
-    if target not in named:
-        return ("inconclusive" if verdicts[target] == Verdict.INCONCLUSIVE.text()
-                else "gap, not explained (no catalogued name)")
-    if truth["name"].lower() not in verdicts[target].lower():
-        return "wrong name (confident)"
-    if any(t not in targets for t in flagged):
-        return "right name, another equation also flagged"
-    return "right name, exponent or component outside the tolerance"
-
-
-def outcome_table(rows: list[dict]) -> str:
-    """Counts of :func:`outcome` per kind of case, with example seeds."""
-    lines = ["| case kind | outcome | cases | example seeds |", "|---|---|---|---|"]
-    for kind in ("catalogued", "null", "out_of_catalogue"):
-        part = [r for r in rows if r["truth"]["kind"] == kind]
-        classes = sorted({outcome(r) for r in part})
-        for c in sorted(classes, key=lambda c: -sum(outcome(r) == c for r in part)):
-            seeds = [r["seed"] for r in part if outcome(r) == c]
-            lines.append(f"| {kind} | {c} | {len(seeds)} | {', '.join(map(str, seeds[:8]))} |")
-    return "\n".join(lines)
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", type=int, default=300)
@@ -269,7 +227,7 @@ def main(argv=None) -> int:
         print("## Beside PySINDy (same cases) by domain\n\n" + sindy_table(rows, "domain", domains) + "\n")
         print("## Beside PySINDy by noise level\n\n" + sindy_table(rows, "noise", noises) + "\n")
     print("## By withheld effect\n\n" + effect_table(rows) + "\n")
-    print("## Outcome classes (ours)\n\n" + outcome_table(rows) + "\n")
+    print("## Outcome classes (ours)\n\n" + score.outcome_table(rows) + "\n")
     total = sum(r.get("generate_s", 0) + r.get("diagnose_s", 0) + r.get("sindy_s", 0) for r in rows)
     print(f"time per case: {total / max(1, len(rows)):.2f} s (generate + diagnose + PySINDy); "
           f"wall {time.perf_counter() - started:.0f} s")

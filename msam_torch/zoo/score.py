@@ -114,3 +114,45 @@ def theta_within(gaps: dict, theta: dict, tolerance: float) -> bool:
             if term not in fitted or abs(fitted[term] - value) > tolerance * abs(value):
                 return False
     return True
+
+
+def outcome(row: dict) -> str:
+    """The class of our answer on one case (the failure classes of the report)."""
+    ours, truth = row["ours"], row["truth"]
+    if "error" in ours:
+        return "error"
+    verdicts = {t: e["verdict"] for t, e in ours["equations"].items()}
+    flagged = [t for t, v in verdicts.items() if v != Verdict.NO_GAP.text()]
+    named = [t for t, v in verdicts.items() if explained(v)]
+    undecided = all(verdicts[t] == Verdict.INCONCLUSIVE.text() for t in flagged)
+    no_gap = ours["verdict"] == Verdict.NO_GAP.text()  # where no equation is flagged, the verdict tells
+    if truth["kind"] != "catalogued":
+        return (("no gap" if no_gap else "inconclusive") if not flagged else "named an effect" if named
+                else "inconclusive" if undecided else "gap, not explained")
+    if ours["top1"]:
+        return "top-1"
+    targets = truth["targets"]
+    if not any(t in flagged for t in targets):
+        return ("another equation flagged, not the truth's" if flagged else "no significant gap" if no_gap
+                else "inconclusive")
+    target = targets[0]
+    if target not in named:
+        return ("inconclusive" if verdicts[target] == Verdict.INCONCLUSIVE.text()
+                else "gap, not explained (no catalogued name)")
+    if truth["name"].lower() not in verdicts[target].lower():
+        return "wrong name (confident)"
+    if any(t not in targets for t in flagged):
+        return "right name, another equation also flagged"
+    return "right name, exponent or component outside the tolerance"
+
+
+def outcome_table(rows: list[dict]) -> str:
+    """Counts of :func:`outcome` per kind of case, with example seeds."""
+    lines = ["| case kind | outcome | cases | example seeds |", "|---|---|---|---|"]
+    for kind in ("catalogued", "null", "out_of_catalogue"):
+        part = [r for r in rows if r["truth"]["kind"] == kind]
+        classes = sorted({outcome(r) for r in part})
+        for c in sorted(classes, key=lambda c: -sum(outcome(r) == c for r in part)):
+            seeds = [r["seed"] for r in part if outcome(r) == c]
+            lines.append(f"| {kind} | {c} | {len(seeds)} | {', '.join(map(str, seeds[:8]))} |")
+    return "\n".join(lines)

@@ -15,8 +15,8 @@ from msam_torch.data.loading import load_datasets
 from msam_torch.diagnosis import diagnose
 from msam_torch.run.plan import prepare
 from msam_torch.data.systems import WITHHELD
+from msam_torch.data.withheld import finer_records
 
-from experiments.bench.big_csv import records  # to move into the package (experiments/README.md)
 
 DATASETS = Path(__file__).resolve().parents[2] / "msam_torch" / "data" / "datasets"
 
@@ -73,7 +73,7 @@ def test_the_loader_decimates_an_oversampled_record_and_records_it():
 def test_decimation_keeps_the_diagnosis_of_a_finely_sampled_record():
     """The same system and noise at 2000 and at 200 000 samples: the same verdict and exponent."""
     case = "msd_quadratic_drag"
-    frames = records(case, 40.0, 2000, 200_000, 0.01, 0)
+    frames = finer_records(case, 40.0, 2000, 200_000, 0.01, 0)
     config = {"model": WITHHELD[case].model, "data": {"time": "t", "columns": {"x": "x", "u": "u"}}}
     reports = {n: diagnose(config, data=frame) for n, frame in frames.items()}
     coarse, fine = reports[2000], reports[200_000]

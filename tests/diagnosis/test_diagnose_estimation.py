@@ -18,8 +18,8 @@ from msam_torch.diagnosis.compare.confidence import resamples, told_apart
 from msam_torch.diagnosis.stages.structure import whiteness
 from msam_torch.diagnosis.compare.verdict import demoted, equation_verdict, free_run_reasons, overall
 
-from experiments.bench.bench_diagnose import records  # the benchmark's; to move (experiments/README.md)
 from msam_torch.config.to_spec import to_spec
+from msam_torch.data.withheld import withheld_records
 
 QUICK = DiagnoseOptions(bootstrap=0, steps=20, free_run=False, max_effects=1)  # the first effect: estimation, not the loop
 
@@ -39,7 +39,7 @@ def test_band_edge_of_a_sine():
 def test_same_verdict_and_exponent_on_a_record_ten_times_longer():
     reports = []
     for length in (1.0, 10.0):
-        w, (train, held_out) = records(length, 1)
+        w, (train, held_out) = withheld_records(length, 1)
         reports.append(diagnose({"model": w.model, "data": {"parametric_error": 0.2, "seed": 1}}, data=train,
                                 validation=held_out, options=QUICK))
     short, long = (r.equations[0] for r in reports)
@@ -59,8 +59,8 @@ def test_a_held_out_record_at_another_sampling_rate_is_read_by_the_same_rules_in
     refined by the training record's rules in time units, so both give the same effect, exponent
     and held-out improvement (before, by the training record's factors in samples: the slower
     held-out record was cut far below its band and its effect read power-law damping)."""
-    w, (train, fast_held_out) = records(1.0, 10, noise=0.0)
-    slow_held_out = records(1.0, 1, noise=0.0)[1][1]
+    w, (train, fast_held_out) = withheld_records(1.0, 10, noise=0.0)
+    slow_held_out = withheld_records(1.0, 1, noise=0.0)[1][1]
     fast, slow = (diagnose({"model": w.model}, data=train, validation=h, options=QUICK).equations[0]
                   for h in (fast_held_out, slow_held_out))
     assert fast.effect == slow.effect == "Coulomb friction" and abs(fast.exponent - slow.exponent) < 0.02
@@ -71,7 +71,7 @@ def test_a_held_out_record_at_another_sampling_rate_is_read_by_the_same_rules_in
 @pytest.mark.slow
 def test_theta_of_a_null_case_from_unsmoothed_signals():
     # 1 % noise on x only, x_dot estimated in band: the re-fitted start recovers -c/m and -k/m
-    w, (train, held_out) = records(1.0, 1, case="msd_linear")
+    w, (train, held_out) = withheld_records(1.0, 1, case="msd_linear")
     report = diagnose({"model": w.model, "data": {"parametric_error": 0.2, "seed": 1}}, data=train,
                       validation=held_out, options=QUICK)
     assert report.verdict_kind is Verdict.NO_GAP
@@ -304,7 +304,7 @@ def test_cross_fits_predict_every_fitted_row_once_from_rows_apart_from_it():
 @pytest.mark.slow
 def test_a_gap_the_candidates_cannot_express_is_not_called_no_gap():
     # the input dead zone leaves a residual correlated with the input: never "no significant gap"
-    w, (train, held_out) = records(4.0, 1, case="msd_input_dead_zone")  # long enough to check the residual
+    w, (train, held_out) = withheld_records(4.0, 1, case="msd_input_dead_zone")  # long enough to check the residual
     report = diagnose({"model": w.model, "data": {"parametric_error": 0.2, "seed": 1}}, data=train,
                       validation=held_out, options=QUICK)
     assert report.verdict_kind is not Verdict.NO_GAP
@@ -338,7 +338,7 @@ def test_a_gap_on_too_few_rows_to_test_for_structure_is_not_called_no_gap():
     assert checks["noise_p"] < 1e-6 and "times what the measurement noise explains" in checks["failed"][0]
     assert all(math.isfinite(v) for v in report.measures["free_run"]["held_out"]["nrmse"].values())
     for noise in (0.01, 0.05):
-        w, (train, held_out) = records(1.0, 1, case="msd_linear", noise=noise)
+        w, (train, held_out) = withheld_records(1.0, 1, case="msd_linear", noise=noise)
         null = diagnose({"model": w.model}, data=train, validation=held_out, options=QUICK).equations[0]
         assert null.verdict_kind is Verdict.NO_GAP and null.checks["independent_rows"] < 12
         assert null.checks["noise_p"] > 0.05
@@ -346,7 +346,7 @@ def test_a_gap_on_too_few_rows_to_test_for_structure_is_not_called_no_gap():
 
 @pytest.mark.slow
 def test_cli_takes_the_diagnose_options(tmp_path, capsys):
-    w, (train, held_out) = records(1.0, 1, case="msd_quadratic_drag")
+    w, (train, held_out) = withheld_records(1.0, 1, case="msd_quadratic_drag")
     for data, file in ((train, "train.csv"), (held_out, "held.csv")):
         pd.DataFrame({"time": data.t.numpy(), "pos": data.measured["x"].numpy(),
                       "force": data.measured["u"].numpy()}).to_csv(tmp_path / file, index=False)
@@ -516,7 +516,7 @@ def test_a_cross_fit_never_keeps_the_full_fit_that_saw_its_block(monkeypatch):
     import msam_torch.diagnosis.effects.hypotheses as hypotheses
 
     fit = hypotheses.fit
-    w, (train, held_out) = records(1.0, 1)
+    w, (train, held_out) = withheld_records(1.0, 1)
     config = {"model": w.model, "data": {"parametric_error": 0.2, "seed": 1}}
 
     def stayed(exclude: bool) -> int:

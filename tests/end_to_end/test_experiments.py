@@ -106,19 +106,9 @@ def imports(folder: str, prefix: str) -> set[tuple[str, str]]:
     return found
 
 
-# Tests that still import an experiment, until what they use moves into the package
-# (experiments/README.md, "Shared with the tests"): drop each line when its import goes.
-PENDING = {
-    ("tests/data/test_big_data.py", "experiments.bench.big_csv"),
-    ("tests/diagnosis/test_diagnose_estimation.py", "experiments.bench.bench_diagnose"),
-    ("tests/realdata/test_realdata.py", "experiments.realdata.realdata"),
-    ("tests/zoo/test_zoo.py", "experiments.suites.zoo"),
-}
-
-
 def test_tests_and_experiments_do_not_import_each_other():
     assert imports("experiments", "tests") == set()
-    assert imports("tests", "experiments") == PENDING
+    assert imports("tests", "experiments") == set()
 
 
 def interval_coverage_table(rows: list[dict], noise_free: dict, folder: Path) -> str:

@@ -5,7 +5,7 @@ import pytest
 
 from msam_torch.data import datasets
 # to move into the package (experiments/README.md, "Tests and experiments")
-from experiments.realdata.realdata import force_error, named_laws, retuned_at, retuned_start, rival
+from msam_torch.diagnosis.compare.refit import force_error, named_laws, retuned_at, retuned_start, rival
 from msam_torch.run.adapt import adapt
 from msam_torch.engine.candidates import EquationData
 from msam_torch.config.schema import load_config

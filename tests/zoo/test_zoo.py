@@ -231,7 +231,7 @@ def test_outcome_classes_read_the_verdict_where_no_equation_is_flagged():
     """A null whose equations show no significant gap but whose verdict is inconclusive (a free-run
     check failed) is 'inconclusive', not 'no gap'; with the verdict 'no significant gap' it is
     'no gap'; a catalogued case likewise, and a flagged equation classes by its own verdict."""
-    from experiments.suites.zoo import outcome  # to move: msam_torch.zoo.score (experiments/README.md)
+    from msam_torch.zoo.score import outcome
 
     quiet = {"x_ddot": {"verdict": Verdict.NO_GAP.text()}}
     truth = lambda kind: {"kind": kind, "targets": ["x_ddot"], "name": "Coulomb friction"}
