@@ -1,4 +1,4 @@
-"""Small shared builders for the tests."""
+"""Small shared builders for the tests, and the quick options most of them run with."""
 from functools import lru_cache
 from pathlib import Path
 
@@ -7,8 +7,12 @@ from msam_torch.engine.candidates import EquationData
 from msam_torch.config.schema import load_config
 from msam_torch.data.systems import SYSTEMS, measure
 from msam_torch.config.to_spec import to_spec
+from msam_torch.diagnosis.options import DiagnoseOptions
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+
+QUICK = ["adaptation.round_robin_steps=3", "adaptation.refinement_steps=2"]  # a run: few steps of Algorithm 1
+ONE_STEP = DiagnoseOptions(bootstrap=0, steps=20, free_run=False)  # a diagnosis: no bootstrap, no free runs
 
 
 def equation_data(name: str = "harmonic", equation: int = 0, normalize: str = "none"):

@@ -4,9 +4,8 @@ import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from msam_torch.cli.main import main
-from tests.helpers import CONFIGS
+from tests.helpers import CONFIGS, QUICK
 
-QUICK = ["adaptation.round_robin_steps=3", "adaptation.refinement_steps=2"]
 
 
 def test_run_prints_the_adapted_equation_and_writes_result_json(tmp_path, capsys):

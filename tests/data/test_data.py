@@ -10,10 +10,9 @@ from msam_torch.data.derivatives import METHODS, choose_window, cutoff_frequency
 from msam_torch.errors import ConfigError, DataError
 from msam_torch.data.systems import SYSTEMS, measure
 from msam_torch.engine.tuning import tune_adapted, tune_start
-from tests.helpers import measured_case, simulated
+from tests.helpers import QUICK, measured_case, simulated
 from msam_torch.config.to_spec import to_spec
 
-QUICK = ["adaptation.round_robin_steps=3", "adaptation.refinement_steps=2"]
 
 
 @pytest.mark.parametrize("method, tolerance", [("savgol", 1e-3), ("spline", 2e-2), ("loess", 2e-2),

@@ -11,8 +11,8 @@ from msam_torch.run.estimation import kinking, refined, refitted
 from msam_torch.data.hold import SAMPLED, hermite, is_held, quadrature_values, represent
 from msam_torch.zoo import excitation
 from msam_torch.config.to_spec import to_spec
+from tests.helpers import ONE_STEP
 
-QUICK = DiagnoseOptions(bootstrap=0, steps=20, free_run=False, max_effects=1)
 
 
 def test_a_held_input_is_told_from_a_sampled_continuous_one():
@@ -133,7 +133,7 @@ def test_held_input_gives_the_true_theta_where_linear_interpolation_biases_it(ho
              "equations": [{"target": "x_dot", "components": [{"term": "x", "theta": "-a"}, {"term": "u", "theta": "b"}],
                             "adjustments": ["abs(x)"]}]}
     config = {"model": model, "data": {"time": "t", "columns": {"x": "x", "u": "u"}, "input_hold": hold}}
-    report = diagnose(config, data=_first_order_record(hold, 0), validation=_first_order_record(hold, 1), options=QUICK)
+    report = diagnose(config, data=_first_order_record(hold, 0), validation=_first_order_record(hold, 1), options=ONE_STEP)
     gap = report.equations[0]
     terms = gap.retuned_equation.split("=")[1].replace("- ", "-").replace("+ ", "").split()
     theta = dict(zip(terms[1::2], map(float, terms[0::2])))

@@ -10,15 +10,14 @@ import torch
 from msam_torch.run.adapt import adapt
 from msam_torch.config.schema import load_config
 from msam_torch.data.loading import resolve_datasets
-from msam_torch.diagnosis import DiagnoseOptions, Verdict, diagnose
+from msam_torch.diagnosis import Verdict, diagnose
 from msam_torch.errors import DataError, MSAMError
 from msam_torch.data.systems import WITHHELD
 
 from tests.diagnosis.test_diagnose import true_signals
 from msam_torch.config.to_spec import to_spec
+from tests.helpers import ONE_STEP, QUICK
 
-OPTIONS = DiagnoseOptions(bootstrap=0, steps=20, free_run=False)
-QUICK = ["adaptation.round_robin_steps=3", "adaptation.refinement_steps=2"]
 CASE = WITHHELD["msd_quadratic_drag"]
 CONFIG = {"model": CASE.model, "data": {"time": "time", "columns": {"x": "pos", "u": "force"}, "derivatives": "savgol"}}
 
@@ -36,7 +35,7 @@ def test_diagnose_takes_frames_mappings_files_and_datasets_alike(tmp_path):
     as_mapping = lambda f: {c: torch.tensor(f[c].to_numpy()) for c in f}
     spec = to_spec(load_config(CONFIG).model)
     datasets = resolve_datasets(load_config(CONFIG).data, spec, data=train, validation=held)
-    reports = [diagnose(CONFIG, data=a, validation=b, options=OPTIONS) for a, b in (
+    reports = [diagnose(CONFIG, data=a, validation=b, options=ONE_STEP) for a, b in (
         (train, held), (as_mapping(train), as_mapping(held)), (tmp_path / "train.csv", str(tmp_path / "held.parquet")),
         datasets)]
     for report in reports:
@@ -64,13 +63,13 @@ def test_adapt_takes_a_frame_a_file_and_a_dataset_like_diagnose(tmp_path):
 def test_a_wrong_data_argument_is_an_error_naming_it():
     train, held = frames()
     with pytest.raises(DataError, match="^data: expected a CSV/Parquet path, a pandas DataFrame"):
-        diagnose(CONFIG, data=train.to_numpy(), options=OPTIONS)
+        diagnose(CONFIG, data=train.to_numpy(), options=ONE_STEP)
     with pytest.raises(DataError, match="^validation: expected .* got list"):
         adapt(CONFIG, QUICK, data=train, validation=[1.0, 2.0])
     spec = to_spec(load_config(CONFIG).model)
     dataset, _ = resolve_datasets(load_config(CONFIG).data, spec, data=train)
     with pytest.raises(MSAMError, match="^validation: with data given as a Dataset"):
-        diagnose(CONFIG, data=dataset, validation=held, options=OPTIONS)
+        diagnose(CONFIG, data=dataset, validation=held, options=ONE_STEP)
     with pytest.raises(DataError, match="^validation: held-out data from a file or table need measured training data"):
         adapt({"model": CASE.model, "data": {"system": CASE.system}}, QUICK, validation=held)
 

@@ -20,8 +20,8 @@ from msam_torch.diagnosis.compare.verdict import demoted, equation_verdict, free
 
 from msam_torch.config.to_spec import to_spec
 from msam_torch.data.withheld import withheld_records
+from tests.helpers import ONE_STEP
 
-QUICK = DiagnoseOptions(bootstrap=0, steps=20, free_run=False, max_effects=1)  # the first effect: estimation, not the loop
 
 
 def test_band_edge_of_a_sine():
@@ -41,7 +41,7 @@ def test_same_verdict_and_exponent_on_a_record_ten_times_longer():
     for length in (1.0, 10.0):
         w, (train, held_out) = withheld_records(length, 1)
         reports.append(diagnose({"model": w.model, "data": {"parametric_error": 0.2, "seed": 1}}, data=train,
-                                validation=held_out, options=QUICK))
+                                validation=held_out, options=ONE_STEP))
     short, long = (r.equations[0] for r in reports)
     assert short.verdict == long.verdict == "gap explained by Coulomb friction"
     assert short.exponent == pytest.approx(-1.0, abs=0.06)
@@ -61,7 +61,7 @@ def test_a_held_out_record_at_another_sampling_rate_is_read_by_the_same_rules_in
     held-out record was cut far below its band and its effect read power-law damping)."""
     w, (train, fast_held_out) = withheld_records(1.0, 10, noise=0.0)
     slow_held_out = withheld_records(1.0, 1, noise=0.0)[1][1]
-    fast, slow = (diagnose({"model": w.model}, data=train, validation=h, options=QUICK).equations[0]
+    fast, slow = (diagnose({"model": w.model}, data=train, validation=h, options=ONE_STEP).equations[0]
                   for h in (fast_held_out, slow_held_out))
     assert fast.effect == slow.effect == "Coulomb friction" and abs(fast.exponent - slow.exponent) < 0.02
     assert slow.improvement["relative"] == pytest.approx(fast.improvement["relative"], abs=0.03)
@@ -73,7 +73,7 @@ def test_theta_of_a_null_case_from_unsmoothed_signals():
     # 1 % noise on x only, x_dot estimated in band: the re-fitted start recovers -c/m and -k/m
     w, (train, held_out) = withheld_records(1.0, 1, case="msd_linear")
     report = diagnose({"model": w.model, "data": {"parametric_error": 0.2, "seed": 1}}, data=train,
-                      validation=held_out, options=QUICK)
+                      validation=held_out, options=ONE_STEP)
     assert report.verdict_kind is Verdict.NO_GAP
     gap = report.equations[0]
     assert gap.estimator["weak_form_signals"] == "measured (unsmoothed)"
@@ -306,7 +306,7 @@ def test_a_gap_the_candidates_cannot_express_is_not_called_no_gap():
     # the input dead zone leaves a residual correlated with the input: never "no significant gap"
     w, (train, held_out) = withheld_records(4.0, 1, case="msd_input_dead_zone")  # long enough to check the residual
     report = diagnose({"model": w.model, "data": {"parametric_error": 0.2, "seed": 1}}, data=train,
-                      validation=held_out, options=QUICK)
+                      validation=held_out, options=ONE_STEP)
     assert report.verdict_kind is not Verdict.NO_GAP
 
 
@@ -339,7 +339,7 @@ def test_a_gap_on_too_few_rows_to_test_for_structure_is_not_called_no_gap():
     assert all(math.isfinite(v) for v in report.measures["free_run"]["held_out"]["nrmse"].values())
     for noise in (0.01, 0.05):
         w, (train, held_out) = withheld_records(1.0, 1, case="msd_linear", noise=noise)
-        null = diagnose({"model": w.model}, data=train, validation=held_out, options=QUICK).equations[0]
+        null = diagnose({"model": w.model}, data=train, validation=held_out, options=ONE_STEP).equations[0]
         assert null.verdict_kind is Verdict.NO_GAP and null.checks["independent_rows"] < 12
         assert null.checks["noise_p"] > 0.05
 

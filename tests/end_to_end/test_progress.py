@@ -8,11 +8,10 @@ import time
 
 from msam_torch.cli.main import main
 from msam_torch.run.progress import ProgressHandler, logging_to, step
-from tests.helpers import CONFIGS
+from tests.helpers import CONFIGS, QUICK
 
 ROOT = CONFIGS.parent
 
-QUICK = ["adaptation.round_robin_steps=3", "adaptation.refinement_steps=2"]
 
 
 def test_diagnose_writes_progress_to_a_log_before_it_finishes(tmp_path):

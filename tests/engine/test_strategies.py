@@ -18,9 +18,8 @@ from msam_torch.engine.values import StepOptions
 from msam_torch.engine.step_rules import STEP_SIZES, Eq20, LineSearch
 from msam_torch.config.schema import ThetaRule
 from msam_torch.engine.trainer import Algebraic
-from tests.helpers import CONFIGS, equation_data, measured_case, simulated
+from tests.helpers import CONFIGS, QUICK, equation_data, measured_case, simulated
 
-QUICK = ["adaptation.round_robin_steps=3", "adaptation.refinement_steps=2"]
 
 
 def outcome(result):

@@ -20,6 +20,7 @@ from msam_torch.errors import ConfigError, MSAMError
 from msam_torch.run.plan import prepare
 from msam_torch.simulation.equations import simulate_equations
 from msam_torch.data.systems import System, measure, multisine
+from tests.helpers import ONE_STEP
 
 PARAMETERS = {"m": 2.0, "c": 3.0, "k": 20.0}
 EXCITATIONS = {  # training excitations: the withheld-effect cases', a narrow band above resonance, a wide one
@@ -32,7 +33,6 @@ MODEL = {"states": ["x", "x_dot"], "inputs": ["u"], "parameters": PARAMETERS,
                         "adjustments": ["abs(x_dot)", "abs(x)"]}]}
 CONFIG = {"model": MODEL, "data": {"time": "time", "columns": {"x": "x", "u": "u"}}}
 QUICK = {"round_robin_steps": 3, "refinement_steps": 2}
-FAST = DiagnoseOptions(bootstrap=0, steps=20, free_run=False)
 
 
 def quadratic_drag(t, s, p, u):
@@ -142,8 +142,8 @@ def test_the_estimator_gives_the_functional_numbers():
     assert estimator.result_.equations[0].exponents == functional.equations[0].exponents
     assert estimator.result_.equations[0].validation == functional.equations[0].validation
     assert str(estimator) == str(functional)
-    report = MSAM(CONFIG, diagnose_options=FAST).diagnose(record(), record(True))
-    assert report.equations[0].exponent == diagnose(CONFIG, record(), record(True), options=FAST).equations[0].exponent
+    report = MSAM(CONFIG, diagnose_options=ONE_STEP).diagnose(record(), record(True))
+    assert report.equations[0].exponent == diagnose(CONFIG, record(), record(True), options=ONE_STEP).equations[0].exponent
 
 
 def test_the_estimator_takes_tensors_mappings_and_paths_alike(tmp_path):
@@ -206,7 +206,7 @@ def test_a_diagnosis_gives_its_models_as_modules_for_odeint():
     """``GapReport.model(stage)`` is the diagnosis's own fitted model: one-step rates equal to its
     extended-form models', ``torchdiffeq.odeint`` matches the package's free run of the module to
     1e-8 and the diagnosis's simulation of its models closely."""
-    report = diagnose(CONFIG, data=record(), options=FAST)
+    report = diagnose(CONFIG, data=record(), options=ONE_STEP)
     held = record(True)[:200]
     t, u = torch.tensor(held["time"].to_numpy()), torch.tensor(held["u"].to_numpy())
     x0 = torch.tensor([0.0, 0.0], dtype=torch.float64)

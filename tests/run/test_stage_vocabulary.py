@@ -14,7 +14,7 @@ import pytest
 from msam_torch import DiagnoseOptions, adapt, diagnose
 from msam_torch.diagnosis.report.json_schema import gap_report_schema
 from tests.diagnosis.test_diagnose import case_data
-from tests.helpers import measured_case
+from tests.helpers import QUICK, measured_case
 
 STAGES = {"start", "retuned", "adapted", "adapted_retuned"}
 OTHER_NAMES = {"final", "tuned", "refitted", "initial_model", "nominal_model"}
@@ -37,8 +37,7 @@ def other_stage_names(document: dict) -> set[str]:
 def run_json(tmp_path_factory) -> dict:
     config, frame = measured_case("harmonic", every=2)
     config["data"].update(train={"stop": 2.0}, validation={"start": 2.0 + 1e-9})
-    result = adapt(config, ["adaptation.round_robin_steps=3", "adaptation.refinement_steps=2",
-                            "adaptation.tune_theta=true"], data=frame)
+    result = adapt(config, QUICK + ["adaptation.tune_theta=true"], data=frame)
     return json.loads(result.save(tmp_path_factory.mktemp("run") / "result.json").read_text())
 
 
