@@ -1,2 +1,2 @@
-"""The command line: ``msam run``, ``msam diagnose`` and ``msam report`` (:mod:`.main`) and the types
+"""The command line: ``msam run`` and ``msam diagnose`` (:mod:`.main`) and the types
 of their options (:mod:`.argtypes`)."""
