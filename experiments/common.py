@@ -293,7 +293,7 @@ def median_model(records: list[dict], equation, position: int) -> str:
 
 
 def summary_rows(records: list[dict], levels: list[float], equation, position: int) -> list[dict]:
-    """Per level: starting and final sum|eps| and rho (mean ± std), success rate, median model."""
+    """Per level: starting and adapted sum|eps| and rho (mean ± std), success rate, median model."""
     rows = []
     for level in levels:
         cell = [r for r in records if r["level"] == level]
@@ -303,9 +303,9 @@ def summary_rows(records: list[dict], levels: list[float], equation, position: i
             "target": equation.target, "level": level, "trials": len(cell),
             "start_sum_abs_error": mean_std([e["start"]["sum_abs_error"] for e in eqs]),
             "start_rho": mean_std([e["start"]["rho"] for e in eqs]),
-            "final_sum_abs_error": mean_std([e["final"]["sum_abs_error"] for e in eqs]),
-            "final_rho": mean_std([e["final"]["rho"] for e in eqs]),
+            "adapted_sum_abs_error": mean_std([e["adapted"]["sum_abs_error"] for e in eqs]),
+            "adapted_rho": mean_std([e["adapted"]["rho"] for e in eqs]),
             "success": sum(success) / len(success) if success else None,
-            "median_final_model": median_model(cell, equation, position),
+            "median_adapted_model": median_model(cell, equation, position),
         })
     return rows

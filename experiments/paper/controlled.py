@@ -12,7 +12,7 @@ from experiments.common import (dump_config, load_experiment, markdown_table, mo
                                 run_protocol, save_figure, summary_rows, tensorboard_scalars, write_csv, write_text)
 from msam_torch.config.to_spec import to_spec
 
-COLUMNS = ["start_sum_abs_error", "start_rho", "final_sum_abs_error", "final_rho"]
+COLUMNS = ["start_sum_abs_error", "start_rho", "adapted_sum_abs_error", "adapted_rho"]
 
 
 def run_tables(config_paths: list[Path], out: Path, name: str, max_trials: int | None = None) -> int:
@@ -42,7 +42,7 @@ def run_tables(config_paths: list[Path], out: Path, name: str, max_trials: int |
                 p = match[0] if match else {}
                 pct = f"{round(row['level'] * 100)}%"
                 success = "n/a" if row["success"] is None else f"{100 * row['success']:.0f}%"
-                table.append([row["target"], pct, "ours"] + [row[c] for c in COLUMNS] + [success, row["median_final_model"]])
+                table.append([row["target"], pct, "ours"] + [row[c] for c in COLUMNS] + [success, row["median_adapted_model"]])
                 if p:
                     paper_success = f"{100 * p['success']:.0f}%" if "success" in p else "100% (all cases, text)"
                     table.append([row["target"], pct, "paper"] + [p[c] for c in COLUMNS] + [paper_success, p["model"]])
@@ -71,7 +71,7 @@ def run_tables(config_paths: list[Path], out: Path, name: str, max_trials: int |
     fig, axes = plt.subplots(1, len(plots), figsize=(4 * len(plots), 3.2), squeeze=False)
     for ax, (label, rows) in zip(axes[0], plots):
         levels = [100 * r["level"] for r in rows]
-        for key in ("start_sum_abs_error", "final_sum_abs_error"):
+        for key in ("start_sum_abs_error", "adapted_sum_abs_error"):
             ax.plot(levels, [float(r[key].split(" ")[0]) for r in rows], marker="o", label=key.split("_")[0])
         ax.set(yscale="log", xlabel="ΔΘ (%)", ylabel="mean Σ|ε|", title=label)
         ax.legend(fontsize=7)

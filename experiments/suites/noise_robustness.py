@@ -84,7 +84,7 @@ def error_table(config_path: str, overrides: list[str], levels: list[float], tri
             for eq in spec.equations:
                 theta = torch.stack([spec.theta(eq, p) for p in draws])
                 results += adapt_equation(config, eq, signals, theta)
-            revealed = np.mean([np.mean(r.theta_tuning["final"]["nominal_error"]) for r in results])
+            revealed = np.mean([np.mean(r.theta_tuning["adapted_retuned"]["nominal_error"]) for r in results])
             rows.append({"theta": mode, "parametric_error": level, **summary(results, expect),
                          "mean_revealed_theta_error": float(revealed), "seconds": time.perf_counter() - started})
     return rows
