@@ -2,12 +2,13 @@
 from functools import lru_cache
 from pathlib import Path
 
+import pytest
 
-from msam_torch.engine.candidates import EquationData
 from msam_torch.config.schema import load_config
-from msam_torch.data.systems import SYSTEMS, measure
 from msam_torch.config.to_spec import to_spec
+from msam_torch.data.systems import SYSTEMS, measure
 from msam_torch.diagnosis.options import DiagnoseOptions
+from msam_torch.engine.candidates import EquationData
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
@@ -53,3 +54,17 @@ def measured_case(name: str = "harmonic", length: float = 1.0, time: float = 1.0
     config["model"]["parameters"] = p
     config["data"] = {"time": "t", "columns": {c: c for c in frame.columns if c != "t"}, "derivatives": "exact"}
     return config, frame
+
+
+def slow_folder(conftest: str):
+    """The collection hook of a folder whose tests all belong to the slow tier (``pytest -m slow``):
+    its ``conftest.py`` sets ``pytest_collection_modifyitems = slow_folder(__file__)``."""
+    here = Path(conftest).resolve().parent
+
+    @pytest.hookimpl(tryfirst=True)
+    def pytest_collection_modifyitems(items):
+        for item in items:
+            if here in item.path.parents:
+                item.add_marker(pytest.mark.slow)
+
+    return pytest_collection_modifyitems
