@@ -19,8 +19,8 @@ from typing import Callable, Optional, Union
 from pydantic import BaseModel, ConfigDict, Field
 
 from msam_torch.config.schema import Config, dump_config, load_config, read_yaml, validate
-from msam_torch.run.trials import MAX_ELEMENTS, Trial, TrialResult, run_trials
 from msam_torch.run.result import _finite, write_atomic
+from msam_torch.run.trials import MAX_ELEMENTS, Trial, TrialResult, run_trials
 
 ROOT = Path(__file__).resolve().parent.parent
 

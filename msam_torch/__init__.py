@@ -42,8 +42,8 @@ if TYPE_CHECKING:  # the same names for type checkers and the API docs
     from msam_torch.engine.trainer import Trainer
     from msam_torch.engine.values import StepOptions
     from msam_torch.errors import ConfigError, DataError, MSAMError, NoInformation
-    from msam_torch.run.adapt import adapt
     from msam_torch.estimator import MSAM
+    from msam_torch.run.adapt import adapt
     from msam_torch.run.result import RunResult
     from msam_torch.run.state_model import StateModel
 

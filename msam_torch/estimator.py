@@ -14,16 +14,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from msam_torch.run.adapt import adapt
 from msam_torch.config.schema import Config, RangeConfig, load_config
 from msam_torch.data.loading import DataArgument, resolve_datasets
 from msam_torch.diagnosis.options import DiagnoseOptions
 from msam_torch.diagnosis.report.gap_report import GapReport
 from msam_torch.diagnosis.stages.pipeline import diagnose
 from msam_torch.errors import ConfigError, DataError, MSAMError
-from msam_torch.run.state_model import StateModel
+from msam_torch.run.adapt import adapt
 from msam_torch.run.plan import prepare, records_measured, with_options
 from msam_torch.run.result import RunResult
+from msam_torch.run.state_model import StateModel
 
 
 class MSAM:

@@ -38,15 +38,14 @@ import pandas as pd
 import torch
 
 from experiments.common import ROOT, main_guard, markdown_table, set_threads, write_csv, write_text
-from msam_torch.run.adapt import nominal_parameters
-from msam_torch.engine.candidates import EquationData
 from msam_torch.config.schema import load_config
-from msam_torch.data.loading import load_datasets
-from msam_torch.run.plan import make_trainer
-from msam_torch.run.plan import prepare
-from msam_torch.simulation.ode import groups
-from msam_torch.run.adapt_simulated import prepare_group
 from msam_torch.config.to_spec import to_spec
+from msam_torch.data.loading import load_datasets
+from msam_torch.engine.candidates import EquationData
+from msam_torch.run.adapt import nominal_parameters
+from msam_torch.run.adapt_simulated import prepare_group
+from msam_torch.run.plan import make_trainer, prepare
+from msam_torch.simulation.ode import groups
 
 CONFIGS = ROOT / "configs"
 # The target model's adjustment per adjustable component (None: any function, its exponent ~0).

@@ -20,8 +20,8 @@ import statistics
 
 import torch
 
-from msam_torch.diagnosis import diagnose
 from msam_torch.data.withheld import withheld_records
+from msam_torch.diagnosis import diagnose
 
 CASE = "msd_coulomb"
 NOISE = 0.01

@@ -26,6 +26,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
 from msam_torch.config.to_spec import to_spec
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -37,9 +38,9 @@ FEW_REPEATS_ABOVE = 10**7  # larger cells: 3 repeats
 
 def problem(candidates: int, samples: int):
     """EquationData, nominal theta (adjustable, fixed) and equation for a candidate count."""
-    from msam_torch.engine.candidates import EquationData
     from msam_torch.config.schema import load_config
     from msam_torch.data.systems import SYSTEMS, measure
+    from msam_torch.engine.candidates import EquationData
 
     name, functions = CANDIDATES[candidates]
     if name == "wide":  # six components of the third-order model's states, F = {x1, x2, x3[, |x1|]}
@@ -64,10 +65,10 @@ def cell(candidates: int, samples: int, repeats: int, sequential: int) -> dict:
     import torch
 
     from msam_torch.engine.candidates import Candidate, enumerate_choices
-    from msam_torch.run.trials import MAX_ELEMENTS, chunk_size
     from msam_torch.engine.reference import reference_fitness, reference_step
     from msam_torch.engine.step import evaluate, step
     from msam_torch.engine.values import State, StepOptions
+    from msam_torch.run.trials import MAX_ELEMENTS, chunk_size
 
     data, theta, theta_fixed, _ = problem(candidates, samples)
     options = StepOptions()
@@ -112,9 +113,9 @@ def long_run(candidates: int, samples: int, steps: int) -> dict:
     import torch.distributed as dist
 
     from msam_torch.engine.candidates import enumerate_choices
+    from msam_torch.engine.values import StepOptions
     from msam_torch.run.distributed import ShardedTrainer, init_process_group
     from msam_torch.run.trials import chunk_size
-    from msam_torch.engine.values import StepOptions
 
     joined = init_process_group("cpu")
     data, theta, theta_fixed, _ = problem(candidates, samples)

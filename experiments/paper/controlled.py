@@ -8,8 +8,19 @@ from pathlib import Path
 
 import pandas as pd
 
-from experiments.common import (dump_config, load_experiment, markdown_table, model_config, protocol_notes,
-                                run_protocol, save_figure, summary_rows, tensorboard_scalars, write_csv, write_text)
+from experiments.common import (
+    dump_config,
+    load_experiment,
+    markdown_table,
+    model_config,
+    protocol_notes,
+    run_protocol,
+    save_figure,
+    summary_rows,
+    tensorboard_scalars,
+    write_csv,
+    write_text,
+)
 from msam_torch.config.to_spec import to_spec
 
 COLUMNS = ["start_sum_abs_error", "start_rho", "adapted_sum_abs_error", "adapted_rho"]

@@ -14,8 +14,21 @@ from pathlib import Path
 import pandas as pd
 import torch
 
-from experiments.common import (arguments, dump_config, load_experiment, main_guard, markdown_table, model_config,
-                                model_path, protocol_notes, run_protocol, save_figure, tensorboard_scalars, write_csv, write_text)
+from experiments.common import (
+    arguments,
+    dump_config,
+    load_experiment,
+    main_guard,
+    markdown_table,
+    model_config,
+    model_path,
+    protocol_notes,
+    run_protocol,
+    save_figure,
+    tensorboard_scalars,
+    write_csv,
+    write_text,
+)
 from msam_torch.data.loading import load_datasets
 from msam_torch.run.plan import prepare
 from msam_torch.run.trials import fit_equation, trial_parameters

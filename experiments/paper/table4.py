@@ -10,8 +10,20 @@ from pathlib import Path
 
 import pandas as pd
 
-from experiments.common import (arguments, dump_config, load_experiment, main_guard, markdown_table, model_config,
-                                protocol_notes, run_protocol, save_figure, tensorboard_scalars, write_csv, write_text)
+from experiments.common import (
+    arguments,
+    dump_config,
+    load_experiment,
+    main_guard,
+    markdown_table,
+    model_config,
+    protocol_notes,
+    run_protocol,
+    save_figure,
+    tensorboard_scalars,
+    write_csv,
+    write_text,
+)
 
 
 def success_rates(records: list[dict], levels: list[float]) -> list[float]:

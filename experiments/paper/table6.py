@@ -17,15 +17,25 @@ from pathlib import Path
 import pandas as pd
 import torch
 
-from experiments.common import (ROOT, dump_config, set_threads, main_guard, markdown_table, protocol_notes, save_figure,
-                                tensorboard_scalars, write_csv, write_text)
-from msam_torch.run.adapt import adapt
-from msam_torch.engine.candidates import Candidate, EquationData
+from experiments.common import (
+    ROOT,
+    dump_config,
+    main_guard,
+    markdown_table,
+    protocol_notes,
+    save_figure,
+    set_threads,
+    tensorboard_scalars,
+    write_csv,
+    write_text,
+)
 from msam_torch.config.schema import load_config
-from msam_torch.data.loading import load_datasets
-from msam_torch.engine.fitness import correlation, sum_abs_error
-from msam_torch.run.result import write_atomic
 from msam_torch.config.to_spec import to_spec
+from msam_torch.data.loading import load_datasets
+from msam_torch.engine.candidates import Candidate, EquationData
+from msam_torch.engine.fitness import correlation, sum_abs_error
+from msam_torch.run.adapt import adapt
+from msam_torch.run.result import write_atomic
 
 PAPER = {"original (parameter-tuned)": (4944.38, 0.519, 6361.00, -0.417), "adapted": (678.40, 0.973, 2186.98, 0.759)}
 VARIANTS = {

@@ -34,15 +34,16 @@ import torch
 from scipy import signal
 from scipy.optimize import least_squares
 
-from msam_torch.data import datasets
-from msam_torch.engine.allocator import keep_freed_memory
-from msam_torch.run.adapt import adapt
 from msam_torch.config.schema import load_config
+from msam_torch.config.to_spec import to_spec
+from msam_torch.data import datasets
 from msam_torch.diagnosis import DiagnoseOptions, diagnose
 from msam_torch.diagnosis.report.document import exponent_text
-from msam_torch.simulation.equations import EquationModel, simulate_equations as simulate
+from msam_torch.engine.allocator import keep_freed_memory
 from msam_torch.model.spec import ModelSpec, derivative_name, split_derivative
-from msam_torch.config.to_spec import to_spec
+from msam_torch.run.adapt import adapt
+from msam_torch.simulation.equations import EquationModel
+from msam_torch.simulation.equations import simulate_equations as simulate
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = ROOT / "configs"

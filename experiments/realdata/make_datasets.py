@@ -10,7 +10,6 @@ digits for the derived columns), gzip-compressed, with an explicit time column.
 from __future__ import annotations
 
 import argparse
-
 import shutil
 from pathlib import Path
 

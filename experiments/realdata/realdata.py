@@ -11,20 +11,27 @@ squares on the training record (the same estimated signals the adaptation saw).
 from __future__ import annotations
 
 import argparse
-
 import time
 from pathlib import Path
 
 import torch
 
-from msam_torch.engine.allocator import keep_freed_memory
-from msam_torch.run.adapt import adapt
-from msam_torch.engine.candidates import EquationData
 from msam_torch.config.schema import load_config
-from msam_torch.data.loading import load_datasets
-from msam_torch.simulation.free_run import free_run_models
 from msam_torch.config.to_spec import to_spec
-from msam_torch.diagnosis.compare.refit import errors, force_error, named_laws, one_step, retuned_at, retuned_start, rival
+from msam_torch.data.loading import load_datasets
+from msam_torch.diagnosis.compare.refit import (
+    errors,
+    force_error,
+    named_laws,
+    one_step,
+    retuned_at,
+    retuned_start,
+    rival,
+)
+from msam_torch.engine.allocator import keep_freed_memory
+from msam_torch.engine.candidates import EquationData
+from msam_torch.run.adapt import adapt
+from msam_torch.simulation.free_run import free_run_models
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 

@@ -31,9 +31,9 @@ import torch
 from experiments.common import main_guard
 from experiments.suites.withheld_effects import datasets
 from msam_torch.config.schema import load_config
-from msam_torch.diagnosis import diagnose
-from msam_torch.data.systems import WITHHELD
 from msam_torch.config.to_spec import to_spec
+from msam_torch.data.systems import WITHHELD
+from msam_torch.diagnosis import diagnose
 
 # total exponent of each simulated effect on the signal it depends on (msam_torch.data.systems)
 TRUTH = {"msd_coulomb": 0.0, "msd_quadratic_drag": 2.0, "msd_power_damping": 1.5, "msd_hardening": 3.0,

@@ -24,11 +24,11 @@ import numpy as np
 import torch
 
 from experiments.common import main_guard
-from msam_torch.run.adapt import adapt_equation
 from msam_torch.config.schema import load_config
+from msam_torch.config.to_spec import to_spec
 from msam_torch.data.loading import load_datasets
 from msam_torch.data.systems import perturb_parameters
-from msam_torch.config.to_spec import to_spec
+from msam_torch.run.adapt import adapt_equation
 
 THETA_MODES = {
     "fixed": [],

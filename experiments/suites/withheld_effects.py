@@ -31,13 +31,13 @@ import numpy as np
 import torch
 
 from msam_torch.config.schema import DataConfig, load_config
+from msam_torch.config.to_spec import to_spec
 from msam_torch.data.loading import build_dataset
+from msam_torch.data.systems import SYSTEMS, WITHHELD, measure
 from msam_torch.diagnosis import DiagnoseOptions, Verdict, diagnose
 from msam_torch.diagnosis.catalogue.entries import NOT_CATALOGUED, name_effect
-from msam_torch.run.adapt import nominal_parameters
 from msam_torch.model.spec import ModelSpec
-from msam_torch.data.systems import SYSTEMS, WITHHELD, measure
-from msam_torch.config.to_spec import to_spec
+from msam_torch.run.adapt import nominal_parameters
 
 NOISE = (0.0, 0.01, 0.05)
 PARAMETRIC = (0.0, 0.25, 0.5)

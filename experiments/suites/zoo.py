@@ -36,8 +36,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import torch  # noqa: E402
 
-from msam_torch.engine.allocator import keep_freed_memory  # noqa: E402
 from msam_torch.diagnosis import diagnose  # noqa: E402
+from msam_torch.engine.allocator import keep_freed_memory  # noqa: E402
 from msam_torch.run.result import _finite  # noqa: E402
 from msam_torch.zoo import DOMAINS, generate, score, sindy  # noqa: E402
 

@@ -19,8 +19,8 @@ import traceback
 from pathlib import Path
 
 from msam_torch import __version__
-from msam_torch.engine.allocator import keep_freed_memory
 from msam_torch.cli.argtypes import positive, solver
+from msam_torch.engine.allocator import keep_freed_memory
 from msam_torch.errors import ConfigError, Interrupted, MSAMError, NoInformation
 from msam_torch.run.progress import LOGGER, logging_to, step
 
@@ -29,8 +29,8 @@ EXIT_INTERRUPTED = 130
 
 
 def _run(args) -> int:
-    from msam_torch.run.adapt import adapt, candidate_label
     from msam_torch.config.schema import dump_config, load_config
+    from msam_torch.run.adapt import adapt, candidate_label
     from msam_torch.run.tracking import TensorBoardTracker
 
     config = load_config(args.config, args.overrides)
@@ -166,6 +166,7 @@ def _require_diagnosis(report, path: Path) -> None:
     whose re-fitted and adapted models have no finite held-out measure, learnt nothing: no verdict
     is printed; ``path`` (written) records it."""
     import math
+
     from msam_torch.diagnosis.compare.verdict import TRY
 
     for gap in report.equations:

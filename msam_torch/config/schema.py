@@ -18,9 +18,9 @@ import pydantic
 import yaml
 from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
 
-from msam_torch.errors import ConfigError
 from msam_torch.config.registry import Strategy
 from msam_torch.config.suggestions import misspelt
+from msam_torch.errors import ConfigError
 
 MAX_YAML_DEPTH = 64
 _BRANCH = re.compile(r"^(str|int|float|bool|[a-z-]+\[.*[a-z].*\])$")  # pydantic's labels of union branches in a location

@@ -52,8 +52,8 @@ from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
-from msam_torch.errors import DataError
 from msam_torch.config.registry import Registry
+from msam_torch.errors import DataError
 
 SAVGOL_DEGREE = 3  # local cubic: unbiased for the first two derivatives of a cubic
 LOESS_DEGREE = 1  # statsmodels lowess fits local lines

@@ -20,14 +20,14 @@ import numpy as np
 import pandas as pd
 import torch
 
-from msam_torch.data.bandwidth import RESOLVED, decimate, oversampling
 from msam_torch.config.schema import DataConfig, RangeConfig
+from msam_torch.data.bandwidth import RESOLVED, decimate, oversampling
 from msam_torch.data.derivatives import ESTIMATORS, Auto, DerivativeEstimator, Exact, configured, noise_level, takes
-from msam_torch.errors import ConfigError, DataError
 from msam_torch.data.information import check_variation
-from msam_torch.model.spec import ModelSpec, split_derivative
 from msam_torch.data.systems import get_system, measure
 from msam_torch.data.tables import Table, as_frame, read_frame
+from msam_torch.errors import ConfigError, DataError
+from msam_torch.model.spec import ModelSpec, split_derivative
 
 REGULAR = 1e-2  # sampling is regular when every step is within 1 % of the median step
 LARGEST = float(np.finfo(np.float64).max) / 8  # a measured value at most this large keeps third differences finite

@@ -6,9 +6,9 @@ shrinks (``msam diagnose``; docs/design.md section 3).
 :class:`Verdict`.
 """
 from msam_torch.diagnosis.catalogue.entries import NOT_CATALOGUED, entries
-from msam_torch.diagnosis.stages.pipeline import diagnose
+from msam_torch.diagnosis.compare.verdict import Verdict
 from msam_torch.diagnosis.options import DiagnoseOptions
 from msam_torch.diagnosis.report.gap_report import EquationGap, GapReport
-from msam_torch.diagnosis.compare.verdict import Verdict
+from msam_torch.diagnosis.stages.pipeline import diagnose
 
 __all__ = ["diagnose", "DiagnoseOptions", "GapReport", "EquationGap", "Verdict", "entries", "NOT_CATALOGUED"]

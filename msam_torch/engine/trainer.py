@@ -23,10 +23,9 @@ from typing import Callable
 import torch
 
 from msam_torch.engine.candidates import EquationData, enumerate_choices
-from msam_torch.engine.values import Evaluator
 from msam_torch.engine.fitness import correlation, fitness, sum_abs_error
 from msam_torch.engine.step import evaluate, step
-from msam_torch.engine.values import State, StepOptions
+from msam_torch.engine.values import Evaluator, State, StepOptions
 
 
 @dataclass(frozen=True)

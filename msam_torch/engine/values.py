@@ -10,8 +10,8 @@ from typing import Protocol, runtime_checkable
 
 import torch
 
-from msam_torch.engine.step_rules import STEP_SIZES, StepSizeRule
 from msam_torch.config.schema import ThetaRule
+from msam_torch.engine.step_rules import STEP_SIZES, StepSizeRule
 
 
 @dataclass(frozen=True)

@@ -7,20 +7,20 @@ from typing import Callable
 
 import torch
 
-from msam_torch.engine.candidates import EquationData, equation_choices
 from msam_torch.config.schema import Config, load_config
 from msam_torch.data.loading import DataArgument, Dataset, resolve_datasets
-from msam_torch.run.estimation import Estimation, choose, regressor_band
-from msam_torch.run.plan import Plan, make_trainer, prepare, records_measured
-from msam_torch.run.progress import LOGGER
-from msam_torch.model.notation import format_component, format_equation
-from msam_torch.run.result import EquationResult, RunResult
-from msam_torch.run.adapt_simulated import adapt_simulation
-from msam_torch.model.spec import Equation, ModelSpec
 from msam_torch.data.systems import perturb_parameters
+from msam_torch.engine.candidates import EquationData, equation_choices
 from msam_torch.engine.trainer import Fit, Trainer
 from msam_torch.engine.tuning import Tuned, measure_model, relative_error, tune_adapted, tune_start
 from msam_torch.engine.weak_form import TestFunctions, resolves, weak_data
+from msam_torch.model.notation import format_component, format_equation
+from msam_torch.model.spec import Equation, ModelSpec
+from msam_torch.run.adapt_simulated import adapt_simulation
+from msam_torch.run.estimation import Estimation, choose, regressor_band
+from msam_torch.run.plan import Plan, make_trainer, prepare, records_measured
+from msam_torch.run.progress import LOGGER
+from msam_torch.run.result import EquationResult, RunResult
 
 
 def nominal_parameters(config: Config, spec: ModelSpec) -> dict:

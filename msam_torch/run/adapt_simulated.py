@@ -10,20 +10,19 @@ from typing import Callable
 
 import torch
 
-from msam_torch.run.plan import Plan
 from msam_torch.data.loading import Dataset
+from msam_torch.engine.trainer import Trainer
 from msam_torch.errors import ConfigError
 from msam_torch.model.notation import format_component, format_equation
-from msam_torch.run.result import EquationResult, RunResult
 from msam_torch.model.spec import Equation
-from msam_torch.engine.trainer import Trainer
+from msam_torch.run.plan import Plan
+from msam_torch.run.result import EquationResult, RunResult
+from msam_torch.simulation.configured import load_records, output_states, state_limits
 from msam_torch.simulation.free_run import free_run, rmse
 from msam_torch.simulation.least_squares import fit_parameters
 from msam_torch.simulation.ode import Parameters, build_model, groups
-from msam_torch.simulation.configured import output_states, state_limits
 from msam_torch.simulation.problem import SimulationData, unpacked
 from msam_torch.simulation.record import Record
-from msam_torch.simulation.configured import load_records
 from msam_torch.simulation.solver import simulate
 
 

@@ -18,12 +18,12 @@ import sys
 import torch
 import torch.distributed as dist
 
-from msam_torch.run.adapt import adapt
 from msam_torch.config.schema import load_config
-from msam_torch.errors import MSAMError
-from msam_torch.run.plan import Plan
-from msam_torch.engine.values import State
 from msam_torch.engine.trainer import Trainer
+from msam_torch.engine.values import State
+from msam_torch.errors import MSAMError
+from msam_torch.run.adapt import adapt
+from msam_torch.run.plan import Plan
 
 
 class ShardedTrainer(Trainer):

@@ -24,15 +24,15 @@ import numpy as np
 import torch
 from scipy.signal import resample_poly
 
+from msam_torch.config.schema import DataConfig
 from msam_torch.data import hold
 from msam_torch.data.bandwidth import band_edge, decimate
-from msam_torch.config.schema import DataConfig
-from msam_torch.data.loading import Dataset, build_dataset
 from msam_torch.data.derivatives import DerivativeEstimator, InBand
-from msam_torch.errors import DataError, MSAMError
-from msam_torch.simulation.equations import EquationModel
-from msam_torch.model.spec import ModelSpec, derivative_name, split_derivative
+from msam_torch.data.loading import Dataset, build_dataset
 from msam_torch.engine.weak_form import TestFunctions, half_width_for, weak_data
+from msam_torch.errors import DataError, MSAMError
+from msam_torch.model.spec import ModelSpec, derivative_name, split_derivative
+from msam_torch.simulation.equations import EquationModel
 
 SAMPLES_PER_PERIOD = 7  # decimation keeps the band edge below 1/7 of the sampling rate
 DERIVATIVE_MARGIN = 2.0  # a derivative's smoother passes twice the band edge

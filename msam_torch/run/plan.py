@@ -36,17 +36,16 @@ from dataclasses import dataclass
 import torch
 
 from msam_torch.config.schema import Config, validate
-from msam_torch.data.loading import DataArgument, Dataset, derivative_estimator
-from msam_torch.data.derivatives import ESTIMATORS, DerivativeEstimator
-from msam_torch.engine.step_rules import STEP_SIZES
-from msam_torch.errors import ConfigError
-from msam_torch.run.evaluators import EVALUATORS
-from msam_torch.engine.values import Evaluator
-from msam_torch.run.progress import LOGGER
-from msam_torch.model.spec import ModelSpec
-from msam_torch.engine.values import StepOptions
-from msam_torch.engine.trainer import Trainer
 from msam_torch.config.to_spec import to_spec
+from msam_torch.data.derivatives import ESTIMATORS, DerivativeEstimator
+from msam_torch.data.loading import DataArgument, Dataset, derivative_estimator
+from msam_torch.engine.step_rules import STEP_SIZES
+from msam_torch.engine.trainer import Trainer
+from msam_torch.engine.values import Evaluator, StepOptions
+from msam_torch.errors import ConfigError
+from msam_torch.model.spec import ModelSpec
+from msam_torch.run.evaluators import EVALUATORS
+from msam_torch.run.progress import LOGGER
 
 SECTIONS = {"derivatives": "data", "evaluation": "adaptation", "step_size": "adaptation", "theta": "adaptation"}
 PRESETS = {  # preset -> {(section, key): value} for the keys a config does not give

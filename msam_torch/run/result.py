@@ -14,9 +14,9 @@ from pathlib import Path
 import torch
 
 from msam_torch.engine.candidates import FLOOR
-from msam_torch.run.state_model import StateModel
-from msam_torch.run.outputs import write_atomic
 from msam_torch.model.spec import Equation
+from msam_torch.run.outputs import write_atomic
+from msam_torch.run.state_model import StateModel
 
 
 def adjusted_columns(equation: Equation, entry, signals: dict) -> torch.Tensor:

@@ -16,14 +16,14 @@ import torch
 from torch import nn
 
 from msam_torch.config.schema import Config, load_config
+from msam_torch.config.to_spec import to_spec
 from msam_torch.errors import ConfigError
 from msam_torch.model.expressions import Expression
-from msam_torch.simulation.ode import Parameters, build_model
+from msam_torch.model.spec import ModelSpec, split_derivative
 from msam_torch.simulation.configured import state_limits
+from msam_torch.simulation.ode import Parameters, build_model
 from msam_torch.simulation.record import Record
 from msam_torch.simulation.solver import simulate
-from msam_torch.model.spec import ModelSpec, split_derivative
-from msam_torch.config.to_spec import to_spec
 
 STAGES = ("start", "retuned", "adapted", "adapted_retuned")
 

@@ -19,15 +19,15 @@ from typing import Callable, Sequence
 
 import torch
 
-from msam_torch.run.adapt import equation_result
-from msam_torch.engine.candidates import EquationData, equation_choices
 from msam_torch.config.schema import Config
 from msam_torch.data.loading import load_datasets
+from msam_torch.data.systems import perturb_parameters
+from msam_torch.engine.candidates import EquationData, equation_choices
+from msam_torch.engine.trainer import Fit, Trainer
+from msam_torch.model.spec import Equation
+from msam_torch.run.adapt import equation_result
 from msam_torch.run.plan import Plan, make_trainer, prepare
 from msam_torch.run.result import EquationResult
-from msam_torch.model.spec import Equation
-from msam_torch.data.systems import perturb_parameters
-from msam_torch.engine.trainer import Fit, Trainer
 
 MAX_ELEMENTS = 2**18  # values of one (T, C, N, Q) tensor per chunk: 2 MiB in float64, cache-sized
 

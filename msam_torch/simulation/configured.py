@@ -16,11 +16,11 @@ import numpy as np
 import torch
 
 from msam_torch.config.schema import Config
+from msam_torch.data.derivatives import DerivativeEstimator
 from msam_torch.data.information import check_simulation_record
 from msam_torch.data.loading import Dataset, Table, resolve_datasets
 from msam_torch.errors import ConfigError, DataError
 from msam_torch.model.spec import ModelSpec, split_derivative
-from msam_torch.data.derivatives import DerivativeEstimator
 from msam_torch.simulation.ode import SystemModel
 from msam_torch.simulation.record import Record
 

@@ -18,8 +18,8 @@ import torch
 from msam_torch.engine.fitness import correlation, fitness, sum_abs_error
 from msam_torch.engine.sensitivity import condition_number, structural_sensitivities
 from msam_torch.engine.step import advance, lstsq, step_size
-from msam_torch.engine.values import Evaluation, State, StepOptions, StepResult
 from msam_torch.engine.trainer import measures
+from msam_torch.engine.values import Evaluation, State, StepOptions, StepResult
 from msam_torch.simulation.least_squares import fit_parameters
 from msam_torch.simulation.problem import SimulationData, SimulationSelection, packed, unpacked, usable
 from msam_torch.simulation.sensitivities import jacobians

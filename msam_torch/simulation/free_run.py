@@ -9,12 +9,11 @@ import torch
 
 from msam_torch.config.schema import Config
 from msam_torch.model.spec import ModelSpec
+from msam_torch.simulation.configured import load_records, output_states, state_limits
 from msam_torch.simulation.least_squares import fit_parameters
 from msam_torch.simulation.ode import Parameters, SystemModel, build_model
-from msam_torch.simulation.configured import output_states, state_limits
 from msam_torch.simulation.problem import SimulationData
 from msam_torch.simulation.record import Record
-from msam_torch.simulation.configured import load_records
 from msam_torch.simulation.solver import simulate
 
 

@@ -8,7 +8,6 @@ from dataclasses import dataclass
 import torch
 
 
-
 @dataclass(frozen=True)
 class Record:
     """A record on a uniform grid: time (N,), external signals (N, E) or per row (B, N, E),

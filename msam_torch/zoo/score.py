@@ -23,7 +23,9 @@ import math
 import re
 
 from msam_torch.diagnosis.catalogue.entries import TOLERANCE  # the exponent tolerance of a right functional form
-from msam_torch.diagnosis.compare.comparison import DIVERGED  # the held-out free-run NRMSE beyond which a run has diverged
+from msam_torch.diagnosis.compare.comparison import (
+    DIVERGED,  # the held-out free-run NRMSE beyond which a run has diverged
+)
 from msam_torch.diagnosis.compare.verdict import Verdict, rests_on
 
 THETA_TOLERANCE = 0.03

@@ -3,7 +3,6 @@ on a dense grid), independently of :mod:`msam_torch.simulation`; and the share o
 withheld effect contributes."""
 from __future__ import annotations
 
-
 import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.interpolate import CubicSpline, interp1d

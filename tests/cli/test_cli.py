@@ -7,7 +7,6 @@ from msam_torch.cli.main import main
 from tests.helpers import CONFIGS, QUICK
 
 
-
 def test_run_prints_the_adapted_equation_and_writes_result_json(tmp_path, capsys):
     assert main(["run", str(CONFIGS / "harmonic.yaml"), "--out", str(tmp_path), "--no-tensorboard"]) == 0
     printed = capsys.readouterr().out

@@ -31,8 +31,8 @@ def test_help_and_version_do_not_import_torch_pandas_or_scipy(flag):
 
 def test_public_names_resolve_to_the_objects_of_their_modules():
     from msam_torch import adapt
-    from msam_torch.run.adapt import adapt as api_adapt
     from msam_torch.engine.trainer import Trainer
+    from msam_torch.run.adapt import adapt as api_adapt
 
     assert adapt is api_adapt and msam_torch.Trainer is Trainer
     for name in msam_torch.__all__:

@@ -9,14 +9,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from msam_torch.data.bandwidth import RESOLVED, decimate, oversampling
 from msam_torch.config.schema import load_config
+from msam_torch.data.bandwidth import RESOLVED, decimate, oversampling
 from msam_torch.data.loading import load_datasets
-from msam_torch.diagnosis import diagnose
-from msam_torch.run.plan import prepare
 from msam_torch.data.systems import WITHHELD
 from msam_torch.data.withheld import finer_records
-
+from msam_torch.diagnosis import diagnose
+from msam_torch.run.plan import prepare
 
 DATASETS = Path(__file__).resolve().parents[2] / "msam_torch" / "data" / "datasets"
 

@@ -3,16 +3,15 @@ import numpy as np
 import pytest
 import torch
 
-from msam_torch.run.adapt import adapt
-from msam_torch.engine.candidates import EquationData
 from msam_torch.config.schema import load_config
-from msam_torch.data.derivatives import METHODS, choose_window, cutoff_frequency, estimate, noise_level
-from msam_torch.errors import ConfigError, DataError
-from msam_torch.data.systems import SYSTEMS, measure
-from msam_torch.engine.tuning import tune_adapted, tune_start
-from tests.helpers import QUICK, measured_case, simulated
 from msam_torch.config.to_spec import to_spec
-
+from msam_torch.data.derivatives import METHODS, choose_window, cutoff_frequency, estimate, noise_level
+from msam_torch.data.systems import SYSTEMS, measure
+from msam_torch.engine.candidates import EquationData
+from msam_torch.engine.tuning import tune_adapted, tune_start
+from msam_torch.errors import ConfigError, DataError
+from msam_torch.run.adapt import adapt
+from tests.helpers import QUICK, measured_case, simulated
 
 
 @pytest.mark.parametrize("method, tolerance", [("savgol", 1e-3), ("spline", 2e-2), ("loess", 2e-2),

@@ -5,14 +5,13 @@ import torch
 from numpy.polynomial import polynomial as P
 from scipy.integrate import solve_ivp
 
-from msam_torch.diagnosis import DiagnoseOptions, diagnose
 from msam_torch.config.schema import load_config
-from msam_torch.run.estimation import kinking, refined, refitted
-from msam_torch.data.hold import SAMPLED, hermite, is_held, quadrature_values, represent
-from msam_torch.zoo import excitation
 from msam_torch.config.to_spec import to_spec
+from msam_torch.data.hold import SAMPLED, hermite, is_held, quadrature_values, represent
+from msam_torch.diagnosis import DiagnoseOptions, diagnose
+from msam_torch.run.estimation import kinking, refined, refitted
+from msam_torch.zoo import excitation
 from tests.helpers import ONE_STEP
-
 
 
 def test_a_held_input_is_told_from_a_sampled_continuous_one():
@@ -209,10 +208,10 @@ def test_a_motor_whose_current_settles_within_two_samples_gives_its_drag_law():
     speed's weak form)."""
     from scipy.integrate import solve_ivp
 
-    from msam_torch.data.loading import Dataset
     from msam_torch.data.derivatives import SavitzkyGolay
-    from msam_torch.run.estimation import choose
+    from msam_torch.data.loading import Dataset
     from msam_torch.engine.weak_form import TestFunctions
+    from msam_torch.run.estimation import choose
 
     dt, n, a, k, b, K, c, d = 0.01, 2000, 80.0, 0.5, 60.0, 200.0, 0.5, 0.002
     u = np.repeat(np.random.default_rng(2).choice([-1.0, 1.0], n // 6 + 1), 6)[:n]

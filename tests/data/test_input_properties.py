@@ -12,10 +12,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from msam_torch.config.schema import load_config
+from msam_torch.config.to_spec import to_spec
 from msam_torch.errors import ConfigError, MSAMError
 from msam_torch.model.expressions import FUNCTIONS, parse
 from tests.helpers import CONFIGS
-from msam_torch.config.to_spec import to_spec
 
 NAMES = ("c", "m", "x")
 EXAMPLES = int(os.environ.get("MSAM_PROPERTY_EXAMPLES", "150"))  # the experiment asks for more

@@ -8,10 +8,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from msam_torch.config.schema import load_config
+from msam_torch.config.to_spec import to_spec
 from msam_torch.data.loading import load_datasets
 from msam_torch.errors import MSAMError
 from tests.helpers import measured_case
-from msam_torch.config.to_spec import to_spec
 
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 CONFIG, FRAME = measured_case("harmonic", every=20)

@@ -10,13 +10,15 @@ import torch
 
 from msam_torch.cli.main import main
 from msam_torch.config.schema import DataConfig, load_config
+from msam_torch.config.to_spec import to_spec
 from msam_torch.data.loading import build_dataset
+from msam_torch.data.systems import SYSTEMS, WITHHELD
+from msam_torch.data.systems import measure as simulate_true
 from msam_torch.diagnosis import DiagnoseOptions, Verdict, diagnose
 from msam_torch.diagnosis.catalogue.entries import NOT_CATALOGUED, name_effect
 from msam_torch.engine.weak_form import TestFunctions as Bumps
-from msam_torch.simulation.equations import EquationModel, simulate_equations as simulate
-from msam_torch.data.systems import SYSTEMS, WITHHELD, measure as simulate_true
-from msam_torch.config.to_spec import to_spec
+from msam_torch.simulation.equations import EquationModel
+from msam_torch.simulation.equations import simulate_equations as simulate
 
 FAST = DiagnoseOptions(bootstrap=6, steps=20)
 

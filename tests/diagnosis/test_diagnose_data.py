@@ -7,15 +7,14 @@ import pandas as pd
 import pytest
 import torch
 
-from msam_torch.run.adapt import adapt
 from msam_torch.config.schema import load_config
+from msam_torch.config.to_spec import to_spec
 from msam_torch.data.loading import resolve_datasets
+from msam_torch.data.systems import WITHHELD
 from msam_torch.diagnosis import Verdict, diagnose
 from msam_torch.errors import DataError, MSAMError
-from msam_torch.data.systems import WITHHELD
-
+from msam_torch.run.adapt import adapt
 from tests.diagnosis.test_diagnose import true_signals
-from msam_torch.config.to_spec import to_spec
 from tests.helpers import ONE_STEP, QUICK
 
 CASE = WITHHELD["msd_quadratic_drag"]

@@ -9,19 +9,17 @@ import pytest
 import torch
 from scipy.integrate import solve_ivp
 
-from msam_torch.data.bandwidth import band_edge
 from msam_torch.cli.main import main
-from msam_torch.data.derivatives import BAND
-from msam_torch.diagnosis import NOT_CATALOGUED, DiagnoseOptions, EquationGap, Verdict, diagnose
-from msam_torch.engine.weak_form import HALF_AMPLITUDE
-from msam_torch.diagnosis.compare.confidence import resamples, told_apart
-from msam_torch.diagnosis.stages.structure import whiteness
-from msam_torch.diagnosis.compare.verdict import demoted, equation_verdict, free_run_reasons, overall
-
 from msam_torch.config.to_spec import to_spec
+from msam_torch.data.bandwidth import band_edge
+from msam_torch.data.derivatives import BAND
 from msam_torch.data.withheld import withheld_records
+from msam_torch.diagnosis import NOT_CATALOGUED, DiagnoseOptions, EquationGap, Verdict, diagnose
+from msam_torch.diagnosis.compare.confidence import resamples, told_apart
+from msam_torch.diagnosis.compare.verdict import demoted, equation_verdict, free_run_reasons, overall
+from msam_torch.diagnosis.stages.structure import whiteness
+from msam_torch.engine.weak_form import HALF_AMPLITUDE
 from tests.helpers import ONE_STEP
-
 
 
 def test_band_edge_of_a_sine():
@@ -278,8 +276,8 @@ def test_training_rows_tell_a_name_apart_only_by_a_relevant_margin():
 def test_cross_fits_predict_every_fitted_row_once_from_rows_apart_from_it():
     """Blocked k-fold cross-fitting of the training rows: each fitted row is in one block, and the
     fit that predicts a block leaves out every row within the independence distance of it."""
-    from msam_torch.diagnosis.stages.rows import WeakForm
     from msam_torch.config.schema import load_config
+    from msam_torch.diagnosis.stages.rows import WeakForm
 
     t = torch.linspace(0, 40, 2001, dtype=torch.float64)
     x = torch.sin(t) + 0.3 * torch.sin(2.3 * t)

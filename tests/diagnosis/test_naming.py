@@ -11,15 +11,15 @@ import torch
 from scipy.integrate import solve_ivp
 
 from msam_torch.config.schema import load_config
+from msam_torch.config.to_spec import to_spec
 from msam_torch.diagnosis import DiagnoseOptions, Verdict, diagnose
 from msam_torch.diagnosis.catalogue import entries as catalogue
-from msam_torch.diagnosis.effects.bootstrap import Bootstrap
 from msam_torch.diagnosis.catalogue.entries import bundled
-from msam_torch.diagnosis.effects.hypotheses import Fitted
 from msam_torch.diagnosis.catalogue.naming import Naming, half_width, repeated
+from msam_torch.diagnosis.effects.bootstrap import Bootstrap
+from msam_torch.diagnosis.effects.hypotheses import Fitted
 from msam_torch.errors import ConfigError
 from msam_torch.zoo.score import parse_equation
-from msam_torch.config.to_spec import to_spec
 
 OPTIONS = DiagnoseOptions(bootstrap=8, free_run=False)
 
@@ -389,8 +389,8 @@ def test_pinned_rivals_are_the_single_valued_entries_a_hypothesis_admits():
     additive hypothesis on ``b w`` are each pinned at Coulomb friction (total exponent 0: gamma -1)
     and quadratic drag (2: gamma 1); exponent ranges (power-law damping) are fitted freely, not
     pinned, and an additive hypothesis tried from three starts is pinned once."""
-    from msam_torch.diagnosis.effects.hypotheses import enumerate_hypotheses
     from msam_torch.diagnosis.catalogue.naming import pinned
+    from msam_torch.diagnosis.effects.hypotheses import enumerate_hypotheses
 
     model, frames, declare = drive()
     config = load_config({"model": {**model, "quantities": declare},
@@ -435,9 +435,9 @@ def test_a_law_held_too_loosely_that_predicts_better_makes_the_verdict_inconclus
     verdict is inconclusive and says why. A loose law that does not beat the reference by the null
     rule's margin changes nothing, and without a loose law there is nothing to report."""
     from msam_torch.diagnosis.catalogue.entries import NOT_CATALOGUED
-    from msam_torch.diagnosis.stages.equation import _loose
-    from msam_torch.diagnosis.effects.hypotheses import Hypothesis
     from msam_torch.diagnosis.compare.verdict import equation_verdict
+    from msam_torch.diagnosis.effects.hypotheses import Hypothesis
+    from msam_torch.diagnosis.stages.equation import _loose
     model = {"states": ["T"], "inputs": ["Ta"], "parameters": {"h": 0.1},
              "equations": [{"target": "T_dot", "components": [{"term": "T", "theta": "-h"},
                                                               {"term": "Ta", "theta": "h", "adjustable": False}],
@@ -471,8 +471,8 @@ def test_an_exponent_most_trials_could_not_refit_is_neither_an_effect_nor_a_loos
     fit itself is not reproduced, so it is no effect and no loose law either (a loose law would
     make the verdict inconclusive in its name)."""
     from msam_torch.diagnosis.catalogue.entries import NOT_CATALOGUED
-    from msam_torch.diagnosis.effects.hypotheses import Hypothesis
     from msam_torch.diagnosis.catalogue.naming import name_hypotheses
+    from msam_torch.diagnosis.effects.hypotheses import Hypothesis
     model = {"states": ["T"], "inputs": ["Ta"], "parameters": {"h": 0.1},
              "equations": [{"target": "T_dot", "components": [{"term": "T", "theta": "-h"},
                                                               {"term": "Ta", "theta": "h", "adjustable": False}],

@@ -16,9 +16,8 @@ from msam_torch.diagnosis import Verdict, diagnose
 from msam_torch.diagnosis.report.document import interval_text, margin, markdown
 from msam_torch.diagnosis.report.figures import DPI, Units, correlations, render
 from msam_torch.diagnosis.report.html import page
-from tests.helpers import CONFIGS
-
 from tests.diagnosis.test_diagnose import FAST, case_data
+from tests.helpers import CONFIGS
 
 UNITS = {"x": {"quantity": "position", "unit": "m"}, "x_dot": "velocity", "u": {"quantity": "force", "unit": "N"}}
 FIGURES = {"x_ddot_residual_time.png", "x_ddot_residual_vs_state.png", "x_ddot_residual_correlation.png",

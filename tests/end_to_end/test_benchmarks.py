@@ -4,11 +4,11 @@ from pathlib import Path
 
 import pytest
 
-from msam_torch.data import datasets
-from msam_torch.run.adapt import adapt
 from msam_torch.config.schema import AdaptationConfig, SimulationConfig, load_config
-from msam_torch.diagnosis import NOT_CATALOGUED, DiagnoseOptions, diagnose
 from msam_torch.config.to_spec import to_spec
+from msam_torch.data import datasets
+from msam_torch.diagnosis import NOT_CATALOGUED, DiagnoseOptions, diagnose
+from msam_torch.run.adapt import adapt
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 NAIVE = ["silverbox_naive", "emps_naive", "cascaded_tanks_naive"]

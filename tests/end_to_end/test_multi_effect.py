@@ -12,17 +12,18 @@ import torch
 
 from msam_torch.cli.main import main
 from msam_torch.config.schema import DataConfig, load_config
+from msam_torch.config.to_spec import to_spec
 from msam_torch.data.loading import build_dataset
+from msam_torch.data.systems import WITHHELD as SUITE
+from msam_torch.data.systems import System, measure, multisine
 from msam_torch.diagnosis import DiagnoseOptions, EquationGap, GapReport, Verdict, diagnose
 from msam_torch.diagnosis.effects.adapted import adapted_components
 from msam_torch.diagnosis.effects.hypotheses import encode, enumerate_hypotheses, extended_equation, offset_testable
 from msam_torch.diagnosis.effects.multi import in_turn
 from msam_torch.errors import ConfigError
 from msam_torch.simulation.equations import EquationModel
-from msam_torch.data.systems import WITHHELD as SUITE, System, measure, multisine
 from msam_torch.zoo import SHARE_FLOOR, generate_pair, score
 from msam_torch.zoo.effects import separable
-from msam_torch.config.to_spec import to_spec
 
 MODEL = SUITE["msd_coulomb"].model  # the withheld-effect suite's mass-spring-damper starting model
 EXCITATIONS = (multisine((0.4, 0.7, 1.1, 1.5, 1.9, 2.4, 3.0, 3.7), 2.5), multisine((0.5, 0.9, 1.3, 1.7, 2.2, 2.8), 2.2))

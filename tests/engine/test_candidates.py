@@ -1,6 +1,6 @@
 import torch
 
-from msam_torch.engine.candidates import Candidate, enumerate_choices, evaluate_stacked, columns, predict
+from msam_torch.engine.candidates import Candidate, columns, enumerate_choices, evaluate_stacked, predict
 from tests.helpers import equation_data
 
 D = torch.float64

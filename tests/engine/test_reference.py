@@ -3,12 +3,12 @@ sensitivities by torch.func)."""
 import pytest
 import torch
 
+from msam_torch.data.systems import perturb_parameters
 from msam_torch.engine.candidates import Candidate, Selection, enumerate_choices
 from msam_torch.engine.reference import reference_round_robin, reference_step
 from msam_torch.engine.step import evaluate, step
-from msam_torch.engine.values import State, StepOptions
-from msam_torch.data.systems import perturb_parameters
 from msam_torch.engine.trainer import Trainer
+from msam_torch.engine.values import State, StepOptions
 from tests.helpers import equation_data
 
 D = torch.float64

@@ -1,10 +1,10 @@
 import torch
 
-from msam_torch.run.adapt import adapt
 from msam_torch.engine.candidates import EquationData
 from msam_torch.engine.step import evaluate, lstsq, step
-from msam_torch.engine.values import State, StepOptions
 from msam_torch.engine.trainer import Trainer
+from msam_torch.engine.values import State, StepOptions
+from msam_torch.run.adapt import adapt
 from tests.helpers import CONFIGS, equation_data
 
 D = torch.float64

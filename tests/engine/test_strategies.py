@@ -8,18 +8,16 @@ import numpy as np
 import pytest
 import torch
 
-from msam_torch.run.adapt import adapt
-from msam_torch.config.schema import load_config
+from msam_torch.config.schema import ThetaRule, load_config
 from msam_torch.data.derivatives import ESTIMATORS, Auto, Exact, SavitzkyGolay, estimate
+from msam_torch.engine.step_rules import STEP_SIZES, Eq20, LineSearch
+from msam_torch.engine.trainer import Algebraic
+from msam_torch.engine.values import StepOptions
 from msam_torch.errors import ConfigError
+from msam_torch.run.adapt import adapt
 from msam_torch.run.evaluators import EVALUATORS
 from msam_torch.run.plan import config_schema, make_trainer, prepare
-from msam_torch.engine.values import StepOptions
-from msam_torch.engine.step_rules import STEP_SIZES, Eq20, LineSearch
-from msam_torch.config.schema import ThetaRule
-from msam_torch.engine.trainer import Algebraic
 from tests.helpers import CONFIGS, QUICK, equation_data, measured_case, simulated
-
 
 
 def outcome(result):

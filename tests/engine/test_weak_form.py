@@ -7,15 +7,15 @@ import pytest
 import torch
 
 from msam_torch import adapt
-from msam_torch.engine import weak_form as weak
 from msam_torch.config.schema import load_config
-from msam_torch.data.loading import Dataset
-from msam_torch.data.derivatives import SavitzkyGolay
-from msam_torch.run.estimation import choose, record_band, refined, regressor_band
-from msam_torch.data.systems import System, measure, multisine
-from msam_torch.engine.weak_form import HALF_AMPLITUDE, SHORTEST, resolves
-from tests.run.test_estimator import CONFIG, PARAMETERS, quadratic_drag
 from msam_torch.config.to_spec import to_spec
+from msam_torch.data.derivatives import SavitzkyGolay
+from msam_torch.data.loading import Dataset
+from msam_torch.data.systems import System, measure, multisine
+from msam_torch.engine import weak_form as weak
+from msam_torch.engine.weak_form import HALF_AMPLITUDE, SHORTEST, resolves
+from msam_torch.run.estimation import choose, record_band, refined, regressor_band
+from tests.run.test_estimator import CONFIG, PARAMETERS, quadratic_drag
 
 MODEL = {"states": ["q", "q_dot"], "inputs": ["tau"], "parameters": {"m": 1.0, "c": 1.0},
          "equations": [{"target": "q_ddot", "components": [{"term": "q_dot", "theta": "-c/m"},

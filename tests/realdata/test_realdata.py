@@ -3,18 +3,19 @@ from pathlib import Path
 
 import pytest
 
+from msam_torch.config.schema import load_config
+from msam_torch.config.to_spec import to_spec
 from msam_torch.data import datasets
+from msam_torch.data.loading import load_datasets
+from msam_torch.diagnosis import NOT_CATALOGUED, Verdict, diagnose
+
 # to move into the package (experiments/README.md, "Tests and experiments")
 from msam_torch.diagnosis.compare.refit import force_error, named_laws, retuned_at, retuned_start, rival
-from msam_torch.run.adapt import adapt
 from msam_torch.engine.candidates import EquationData
-from msam_torch.config.schema import load_config
-from msam_torch.data.loading import load_datasets
-from msam_torch.simulation.free_run import free_run_models
-from msam_torch.diagnosis import NOT_CATALOGUED, Verdict, diagnose
 from msam_torch.errors import DataError
+from msam_torch.run.adapt import adapt
+from msam_torch.simulation.free_run import free_run_models
 from msam_torch.zoo.score import parse_equation
-from msam_torch.config.to_spec import to_spec
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 

@@ -15,11 +15,11 @@ from torchdiffeq import odeint
 from msam_torch import MSAM, adapt
 from msam_torch.cli.main import main
 from msam_torch.config.schema import load_config
+from msam_torch.data.systems import System, measure, multisine
 from msam_torch.diagnosis import DiagnoseOptions, diagnose
 from msam_torch.errors import ConfigError, MSAMError
 from msam_torch.run.plan import prepare
 from msam_torch.simulation.equations import simulate_equations
-from msam_torch.data.systems import System, measure, multisine
 from tests.helpers import ONE_STEP
 
 PARAMETERS = {"m": 2.0, "c": 3.0, "k": 20.0}

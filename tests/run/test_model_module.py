@@ -13,10 +13,10 @@ from torchdiffeq import odeint
 
 from msam_torch import adapt
 from msam_torch.config.schema import load_config
+from msam_torch.config.to_spec import to_spec
 from msam_torch.errors import ConfigError
 from msam_torch.model.notation import format_component
 from msam_torch.simulation.free_run import free_runs
-from msam_torch.config.to_spec import to_spec
 
 
 @pytest.fixture(scope="module")

@@ -7,10 +7,9 @@ import math
 import torch
 
 from msam_torch.config.schema import load_config
-from msam_torch.simulation.equations import EquationModel, simulate_equations
-from msam_torch.simulation import solver
-from msam_torch.simulation.equations import _system
 from msam_torch.config.to_spec import to_spec
+from msam_torch.simulation import solver
+from msam_torch.simulation.equations import EquationModel, _system, simulate_equations
 
 MODEL = {"states": ["x", "x_dot"], "inputs": ["u"], "parameters": {"c": 1.0, "k": 4.0},
          "equations": [{"target": "x_ddot", "components": [{"term": "x_dot", "theta": "-c"}, {"term": "x", "theta": "-k"},

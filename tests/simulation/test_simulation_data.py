@@ -8,16 +8,15 @@ import pandas as pd
 import pytest
 import torch
 
-from msam_torch.run.adapt import adapt, make_trainer
 from msam_torch.config.schema import load_config
+from msam_torch.config.to_spec import to_spec
 from msam_torch.data.loading import Dataset
 from msam_torch.diagnosis import diagnose
 from msam_torch.errors import ConfigError
-from msam_torch.simulation.ode import build_model
+from msam_torch.run.adapt import adapt, make_trainer
 from msam_torch.simulation.configured import load_records, output_states
-
+from msam_torch.simulation.ode import build_model
 from tests.simulation.test_simulation_mode import TANKS, torricelli_record
-from msam_torch.config.to_spec import to_spec
 
 SHORT = ["adaptation.round_robin_steps=2", "adaptation.refinement_steps=1", "adaptation.simulation.prefit_steps=4"]
 

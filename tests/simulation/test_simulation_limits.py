@@ -7,15 +7,14 @@ import pytest
 import torch
 from torchdiffeq import odeint
 
-from msam_torch.engine.candidates import equation_choices
 from msam_torch.config.schema import load_config
+from msam_torch.config.to_spec import to_spec
+from msam_torch.engine.candidates import equation_choices
 from msam_torch.errors import ConfigError
+from msam_torch.run.adapt_simulated import prepare_group
 from msam_torch.run.plan import prepare
 from msam_torch.simulation.ode import build_model
-from msam_torch.run.adapt_simulated import prepare_group
-
 from tests.simulation.test_simulation_mode import TANKS
-from msam_torch.config.to_spec import to_spec
 
 LINEAR = {"k1": 0.05, "k2": 0.05, "k3": 0.04, "k4": 0.05}
 

@@ -9,16 +9,16 @@ import pytest
 import torch
 from torchdiffeq import odeint
 
-from msam_torch.run.adapt import adapt, nominal_parameters
 from msam_torch.config.schema import load_config
-from msam_torch.errors import ConfigError
-from msam_torch.run.plan import prepare
-from msam_torch.simulation.ode import Parameters, build_model
-from msam_torch.simulation.configured import load_records, output_states
-from msam_torch.simulation.solver import simulate
-from msam_torch.run.adapt_simulated import prepare_group
-from tests.helpers import measured_case
 from msam_torch.config.to_spec import to_spec
+from msam_torch.errors import ConfigError
+from msam_torch.run.adapt import adapt, nominal_parameters
+from msam_torch.run.adapt_simulated import prepare_group
+from msam_torch.run.plan import prepare
+from msam_torch.simulation.configured import load_records, output_states
+from msam_torch.simulation.ode import Parameters, build_model
+from msam_torch.simulation.solver import simulate
+from tests.helpers import measured_case
 
 TANKS = {
     "model": {

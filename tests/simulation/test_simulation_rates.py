@@ -3,8 +3,8 @@ against Eq. 9 evaluated from named signal values, on a model with every kind of 
 import torch
 
 from msam_torch.config.schema import ModelConfig
-from msam_torch.simulation.ode import Parameters, build_model
 from msam_torch.config.to_spec import to_spec
+from msam_torch.simulation.ode import Parameters, build_model
 
 MODEL = {
     "states": ["x", "x_dot", "y"],

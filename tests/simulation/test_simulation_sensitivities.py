@@ -2,13 +2,12 @@
 import torch
 
 from msam_torch.config.schema import load_config
-from msam_torch.simulation.problem import SimulationData
-from msam_torch.simulation.ode import build_model
-from msam_torch.simulation.sensitivities import jacobians
-from msam_torch.simulation.configured import load_records, output_states
-
-from tests.simulation.test_simulation_mode import TANKS, torricelli_record
 from msam_torch.config.to_spec import to_spec
+from msam_torch.simulation.configured import load_records, output_states
+from msam_torch.simulation.ode import build_model
+from msam_torch.simulation.problem import SimulationData
+from msam_torch.simulation.sensitivities import jacobians
+from tests.simulation.test_simulation_mode import TANKS, torricelli_record
 
 
 def tanks(tmp_path, method):

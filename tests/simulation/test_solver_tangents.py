@@ -9,13 +9,11 @@ import torch
 import torch.autograd.forward_ad as forward_ad
 
 from msam_torch.config.schema import load_config
-from msam_torch.simulation.equations import EquationModel
-from msam_torch.simulation import solver
-from msam_torch.simulation.equations import _system
-from msam_torch.simulation.ode import Parameters
-
-from tests.simulation.test_segments import MODEL
 from msam_torch.config.to_spec import to_spec
+from msam_torch.simulation import solver
+from msam_torch.simulation.equations import EquationModel, _system
+from msam_torch.simulation.ode import Parameters
+from tests.simulation.test_segments import MODEL
 
 N, DT = 401, 0.05
 

@@ -1,20 +1,19 @@
 """Free runs of stiff models: the fixed step starts within the stability interval of the fastest
 decaying mode (:func:`msam_torch.simulation.equations.fastest_decay`), not only at a share of the
 band's period."""
-import pytest
 import numpy as np
 import pandas as pd
+import pytest
 import torch
 from scipy.integrate import solve_ivp
 
 from msam_torch.config.schema import load_config
+from msam_torch.config.to_spec import to_spec
 from msam_torch.diagnosis import DiagnoseOptions, Verdict, diagnose
 from msam_torch.diagnosis.compare.comparison import STABLE_SHARE
-from msam_torch.simulation.equations import EquationModel
-from msam_torch.simulation.equations import fastest_decay
-from msam_torch.simulation.solver import STABILITY
 from msam_torch.model.spec import ModelSpec
-from msam_torch.config.to_spec import to_spec
+from msam_torch.simulation.equations import EquationModel, fastest_decay
+from msam_torch.simulation.solver import STABILITY
 
 # a DC motor: current with an electrical pole at R/L = 600 per second, speed with a mechanical one
 A = np.array([[-600.0, -2.6], [2400.0, -0.5]])

@@ -21,9 +21,9 @@ import yaml
 from pydantic import BaseModel, ConfigDict
 
 from msam_torch.config.schema import QUANTITIES, EffectConfig, validate
+from msam_torch.diagnosis.effects.hypotheses import holds_constant
 from msam_torch.model.expressions import Expression
 from msam_torch.model.spec import Equation, ModelSpec, derivative_name, split_derivative
-from msam_torch.diagnosis.effects.hypotheses import holds_constant
 
 NOT_CATALOGUED = "power law, no catalogued effect"
 TOLERANCE = 0.2  # the catalogue's resolution: the least half-width of an exponent interval

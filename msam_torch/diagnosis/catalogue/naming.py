@@ -24,11 +24,11 @@ from dataclasses import dataclass
 
 import torch
 
-from msam_torch.model.spec import Equation, ModelSpec
 from msam_torch.diagnosis.catalogue import entries as catalogue
+from msam_torch.diagnosis.compare.verdict import Verdict
 from msam_torch.diagnosis.effects.bootstrap import Bootstrap
 from msam_torch.diagnosis.effects.hypotheses import EXPONENTLESS, Fitted, Hypothesis, sane, slot
-from msam_torch.diagnosis.compare.verdict import Verdict
+from msam_torch.model.spec import Equation, ModelSpec
 
 STABLE_HALF_WIDTH = 1.0  # an exponent known no better than +-1 is not an effect
 SPREAD = 2.0  # interval half-width in standard deviations of the trials' exponents

@@ -7,18 +7,18 @@ import math
 
 import scipy.signal
 import torch
-
-from msam_torch.errors import MSAMError
-from msam_torch.simulation.equations import EquationModel, simulate_equations as simulate
-from msam_torch.simulation.equations import fastest_decay
-from msam_torch.simulation.solver import STABILITY, TABLEAUS
 from torchdiffeq._impl.odeint import SOLVERS  # the method names odeint accepts (no public list)
-from msam_torch.model.spec import Equation, ModelSpec
+
 from msam_torch.diagnosis.compare import measures
-from msam_torch.diagnosis.effects.bootstrap import Bootstrap
 from msam_torch.diagnosis.compare.confidence import best_effect
+from msam_torch.diagnosis.effects.bootstrap import Bootstrap
 from msam_torch.diagnosis.effects.hypotheses import Fitted
 from msam_torch.diagnosis.options import AGREEMENT, DiagnoseOptions
+from msam_torch.errors import MSAMError
+from msam_torch.model.spec import Equation, ModelSpec
+from msam_torch.simulation.equations import EquationModel, fastest_decay
+from msam_torch.simulation.equations import simulate_equations as simulate
+from msam_torch.simulation.solver import STABILITY, TABLEAUS
 
 PER_PERIOD = 0.04  # a fixed step starts at most at this share of the band's period
 STEPS = 500  # ... and at most at this share of the record

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import torch
 
-from msam_torch.diagnosis.options import DiagnoseOptions
 from msam_torch.diagnosis.compare.verdict import Verdict
+from msam_torch.diagnosis.options import DiagnoseOptions
 
 RESAMPLES = 1000  # block-bootstrap resamples of out-of-sample rows (:func:`told_apart`)
 

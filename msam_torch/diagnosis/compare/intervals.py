@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import torch
 
-from msam_torch.model.notation import format_component
-from msam_torch.model.spec import Equation
+from msam_torch.diagnosis.compare.measures import interval
 from msam_torch.diagnosis.effects.bootstrap import Bootstrap
 from msam_torch.diagnosis.effects.hypotheses import Fitted
-from msam_torch.diagnosis.compare.measures import interval
+from msam_torch.model.notation import format_component
+from msam_torch.model.spec import Equation
 
 
 def term_intervals(extended: Equation, equation: Equation, choices: torch.Tensor, original: Fitted,

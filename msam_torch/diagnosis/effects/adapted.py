@@ -12,10 +12,10 @@ stays finite where ``f`` crosses zero.
 """
 from __future__ import annotations
 
-from msam_torch.engine.candidates import FLOOR
 from msam_torch.config.schema import Config, load_config
-from msam_torch.simulation.equations import EquationModel
+from msam_torch.engine.candidates import FLOOR
 from msam_torch.model.spec import Equation
+from msam_torch.simulation.equations import EquationModel
 
 ADAPTED = 2  # the adapted model's row in the batch of :func:`.compare.models`
 

@@ -11,11 +11,11 @@ from dataclasses import dataclass
 
 import torch
 
-from msam_torch.engine.candidates import EquationData
-from msam_torch.engine.values import StepOptions
 from msam_torch.diagnosis.effects.hypotheses import Fitted, fit, heldout_errors, heldout_rmse, sane
 from msam_torch.diagnosis.options import DiagnoseOptions
 from msam_torch.diagnosis.stages.rows import WeakForm
+from msam_torch.engine.candidates import EquationData
+from msam_torch.engine.values import StepOptions
 
 
 @dataclass(frozen=True)

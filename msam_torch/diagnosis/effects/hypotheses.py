@@ -32,13 +32,13 @@ from dataclasses import dataclass, replace
 
 import torch
 
+from msam_torch.diagnosis.stages.rows import WeakForm
 from msam_torch.engine.candidates import EquationData, Selection, columns, predict
+from msam_torch.engine.step import evaluate, step
+from msam_torch.engine.values import State, StepOptions
 from msam_torch.model.expressions import parse
 from msam_torch.model.notation import format_component, format_equation
 from msam_torch.model.spec import Component, Equation
-from msam_torch.engine.step import evaluate, step
-from msam_torch.engine.values import State, StepOptions
-from msam_torch.diagnosis.stages.rows import WeakForm
 
 ADDITIVE_STARTS = (-0.5, 0.5, 1.5)
 COLLINEAR = 0.15  # |gamma| of an additive copy below which it is a log pair of its original (rejected)

@@ -26,9 +26,9 @@ from dataclasses import replace
 from typing import Callable, Optional
 
 from msam_torch.config.schema import Config
+from msam_torch.diagnosis.compare.verdict import Verdict, free_run_reasons
 from msam_torch.diagnosis.effects.adapted import without
 from msam_torch.diagnosis.report.gap_report import GapReport
-from msam_torch.diagnosis.compare.verdict import Verdict, free_run_reasons
 
 Adapt = Callable[[list], Config]  # the config with the effects of these equations added
 Round = Callable[[Config], "tuple[GapReport, Optional[Adapt]]"]  # one diagnosis, and how to adapt its model

@@ -10,27 +10,40 @@ from dataclasses import dataclass
 import torch
 
 from msam_torch.data.loading import Dataset
-from msam_torch.model.notation import format_component, format_equation
-from msam_torch.simulation.equations import EquationModel
-from msam_torch.model.spec import Equation, ModelSpec
-from msam_torch.engine.values import StepOptions
 from msam_torch.diagnosis.catalogue import entries as catalogue
-from msam_torch.diagnosis.compare import confidence
-from msam_torch.diagnosis.effects.bootstrap import bootstrap
-from msam_torch.diagnosis.compare.comparison import models
-from msam_torch.run.estimation import Estimation
-from msam_torch.diagnosis.effects.hypotheses import (Fitted, Hypothesis, encode, enumerate_hypotheses, exponent,
-    extended_equation, fit, fitted_text, heldout_errors, heldout_rmse, crossed_errors, offset_testable, references,
-    slot)
-from msam_torch.diagnosis.compare.intervals import term_intervals
-from msam_torch.diagnosis.stages.localise import starting_where
 from msam_torch.diagnosis.catalogue.naming import Naming, name_hypotheses, pinned, pinned_signs, repeated
+from msam_torch.diagnosis.compare import confidence
+from msam_torch.diagnosis.compare.comparison import models
+from msam_torch.diagnosis.compare.intervals import term_intervals
+from msam_torch.diagnosis.compare.verdict import Verdict, equation_verdict
+from msam_torch.diagnosis.effects.bootstrap import bootstrap
+from msam_torch.diagnosis.effects.hypotheses import (
+    Fitted,
+    Hypothesis,
+    crossed_errors,
+    encode,
+    enumerate_hypotheses,
+    exponent,
+    extended_equation,
+    fit,
+    fitted_text,
+    heldout_errors,
+    heldout_rmse,
+    offset_testable,
+    references,
+    slot,
+)
 from msam_torch.diagnosis.options import DiagnoseOptions
 from msam_torch.diagnosis.report.gap_report import EquationGap
-from msam_torch.diagnosis.stages.structure import residual_checks, structure_left
-from msam_torch.diagnosis.compare.verdict import Verdict, equation_verdict
-from msam_torch.engine.weak_form import target_source
+from msam_torch.diagnosis.stages.localise import starting_where
 from msam_torch.diagnosis.stages.rows import WeakForm
+from msam_torch.diagnosis.stages.structure import residual_checks, structure_left
+from msam_torch.engine.values import StepOptions
+from msam_torch.engine.weak_form import target_source
+from msam_torch.model.notation import format_component, format_equation
+from msam_torch.model.spec import Equation, ModelSpec
+from msam_torch.run.estimation import Estimation
+from msam_torch.simulation.equations import EquationModel
 
 
 @dataclass(frozen=True)

@@ -19,8 +19,8 @@ from dataclasses import asdict, dataclass, replace
 import torch
 
 from msam_torch.engine.candidates import EquationData
-from msam_torch.model.spec import Equation
 from msam_torch.engine.step import lstsq, solve_normal
+from msam_torch.model.spec import Equation
 
 MIN_EXPLAINED = 0.2
 MIN_SHARE = 0.1  # each regime holds at least this share of the rows

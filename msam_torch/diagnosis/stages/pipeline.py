@@ -16,20 +16,20 @@ from pathlib import Path
 
 import torch
 
-from msam_torch.run.adapt import nominal_parameters
 from msam_torch.config.schema import Config, load_config
 from msam_torch.data.loading import DataArgument, resolve_datasets
-from msam_torch.run.plan import prepare
-from msam_torch.run.progress import LOGGER, step, tracked
-from msam_torch.diagnosis.effects.adapted import with_effects
 from msam_torch.diagnosis.compare.comparison import check_solver, compare
-from msam_torch.diagnosis.stages.equation import diagnose_equation
-from msam_torch.run.estimation import choose
+from msam_torch.diagnosis.compare.verdict import demoted, overall
+from msam_torch.diagnosis.effects.adapted import with_effects
 from msam_torch.diagnosis.effects.multi import in_turn
 from msam_torch.diagnosis.options import DiagnoseOptions
 from msam_torch.diagnosis.report.gap_report import GapReport
+from msam_torch.diagnosis.stages.equation import diagnose_equation
 from msam_torch.diagnosis.stages.simulated import diagnose_simulated
-from msam_torch.diagnosis.compare.verdict import demoted, overall
+from msam_torch.run.adapt import nominal_parameters
+from msam_torch.run.estimation import choose
+from msam_torch.run.plan import prepare
+from msam_torch.run.progress import LOGGER, step, tracked
 
 
 def diagnose(config: Config | dict | str | Path, data: DataArgument = None, validation: DataArgument = None,

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import torch
 
 from msam_torch.engine.candidates import EquationData
-from msam_torch.model.spec import Equation
 from msam_torch.engine.weak_form import TestFunctions, weak_data
+from msam_torch.model.spec import Equation
 
 
 @dataclass(frozen=True)

@@ -21,22 +21,22 @@ from pathlib import Path
 
 import torch
 
-from msam_torch.run.adapt import adapt, nominal_parameters
+from msam_torch.config.to_spec import to_spec
 from msam_torch.data.derivatives import METHODS, Auto, DerivativeEstimator
+from msam_torch.diagnosis.catalogue import entries as catalogue
+from msam_torch.diagnosis.compare import confidence, measures
+from msam_torch.diagnosis.compare.verdict import TRY, Verdict, no_gap_verdict, overall
+from msam_torch.diagnosis.report.gap_report import EquationGap, GapReport
+from msam_torch.diagnosis.stages import localise
+from msam_torch.diagnosis.stages.localise import signal_values
+from msam_torch.diagnosis.stages.structure import whiteness
 from msam_torch.model.notation import format_component, format_equation
+from msam_torch.model.spec import Equation, split_derivative
+from msam_torch.run.adapt import adapt, nominal_parameters
 from msam_torch.run.plan import Plan
 from msam_torch.run.progress import LOGGER, step
 from msam_torch.run.result import EquationResult, adjusted_columns
 from msam_torch.simulation.free_run import FreeRun, free_runs
-from msam_torch.model.spec import Equation, split_derivative
-from msam_torch.diagnosis.catalogue import entries as catalogue
-from msam_torch.diagnosis.compare import confidence, measures
-from msam_torch.diagnosis.stages import localise
-from msam_torch.diagnosis.stages.localise import signal_values
-from msam_torch.diagnosis.report.gap_report import EquationGap, GapReport
-from msam_torch.diagnosis.stages.structure import whiteness
-from msam_torch.diagnosis.compare.verdict import TRY, Verdict, no_gap_verdict, overall
-from msam_torch.config.to_spec import to_spec
 
 RECORDS = {"train": "train", "validation": "held_out"}
 

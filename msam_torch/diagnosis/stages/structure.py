@@ -16,11 +16,11 @@ from scipy.spatial import cKDTree
 from scipy.stats import chi2, norm
 from statsmodels.stats.diagnostic import acorr_ljungbox
 
-from msam_torch.model.spec import Equation
 from msam_torch.diagnosis.compare.confidence import significant
 from msam_torch.diagnosis.effects.hypotheses import Fitted, predict_rows
-from msam_torch.engine.weak_form import TestFunctions
 from msam_torch.diagnosis.stages.rows import WeakForm
+from msam_torch.engine.weak_form import TestFunctions
+from msam_torch.model.spec import Equation
 
 NEIGHBOURS = 10
 LAGS = 10  # autocorrelation and input cross-correlation lags, at most
