@@ -47,11 +47,14 @@ def test_the_measure_sees_hidden_circles(tmp_path):
     (pkg / "sub" / "__init__.py").write_text("")
     (pkg / "a.py").write_text("from .sub import b\n")
     (pkg / "sub" / "b.py").write_text("def f():\n    from ..c import x\n")
-    (pkg / "c.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from msam_torch import a\n")
+    (pkg / "c.py").write_text("from typing import TYPE_CHECKING\nfrom msam_torch import f\nif TYPE_CHECKING:\n    from msam_torch import a\n")
+    (pkg / "f.py").write_text("")
     (pkg / "d.py").write_text("REGISTERED = 'msam_torch.e:Thing'\n")
     (pkg / "e.py").write_text("from msam_torch.d import REGISTERED\n")
     (pkg / "sub" / "c.py").write_text("")
     found = measures(tmp_path)
     assert sorted(found["circles"]) == [["msam_torch.a", "msam_torch.c", "msam_torch.sub.b"], ["msam_torch.d", "msam_torch.e"]]
     assert found["same_file_names"] == ["c.py"]
-    assert found["top_level_modules"] == 5  # a, c, d, e and the package sub
+    assert found["top_level_modules"] == 6  # a, c, d, e, f and the package sub
+    assert found["module_levels"] == 2 and found["deepest_module_chain"][-1] in ("msam_torch.f", "msam_torch.a",
+                                                                                 "msam_torch.c", "msam_torch.sub.b")

@@ -136,8 +136,10 @@ def measures(root: Path = ROOT) -> dict:
     lines = {n: len(p.read_text().splitlines()) for n, p in known.items()}
     deepest = max(level, key=level.get)
     chain = [deepest]
-    while graph[chain[-1]] and level[chain[-1]] > 1:
+    while True:  # down the highest import at each step (a circle's modules share a level: it ends there)
         below = [w for w in graph[chain[-1]] if level[w] < level[chain[-1]]]
+        if not below:
+            break
         chain.append(max(below, key=level.get))
     return {
         "modules": len(known),
