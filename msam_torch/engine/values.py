@@ -18,7 +18,7 @@ from msam_torch.engine.step_rules import STEP_SIZES, StepSizeRule
 class StepOptions:
     """How a step is taken. Defaults follow the paper (section 4). ``step_size`` is a rule or the
     name of one in :data:`~msam_torch.engine.step_rules.STEP_SIZES`, ``theta`` a
-    :class:`~msam_torch.engine.step_rules.ThetaRule` or its name; names become the objects here."""
+    :class:`~msam_torch.config.schema.ThetaRule` or its name; names become the objects here."""
 
     dgamma: float = 1e-2  # exponent perturbation of Eq. 15-16
     scaling: str = "dm"  # 'dm': solve and step in dM-scaled units (Eq. 16-18); 'gauss_newton'

@@ -1,7 +1,7 @@
 """A model you can hold: the state equations of a result (Eq. 9, ``sum_i theta_i M_i f_i^gamma_i +
 sum_j theta_j M_j``) as an ``nn.Module`` ``f(t, x)`` for :func:`torchdiffeq.odeint`.
 
-The right-hand side is the package's one Eq. 9 model (:class:`msam_torch.simulation.SystemModel`);
+The right-hand side is the package's one Eq. 9 model (:class:`msam_torch.simulation.ode.SystemModel`);
 inputs (and states no equation simulates) are interpolated from the samples given to
 :meth:`StateModel.with_inputs` as in a simulation record (``simulation.input_hold``). Theta and
 the exponents are parameters (trainable, moved and cast by ``.to()``); the choice of adjustment
@@ -64,7 +64,7 @@ REPORT_STAGES = ("start", "retuned", "adapted")  # the rows of a diagnosis's mod
 
 def report_stage(models: list, stage: str | tuple[str, ...]) -> Stage:
     """``stage`` (``start``, ``retuned``, ``adapted``; or one per equation) of a diagnosis from its
-    equations' extended-form :class:`~msam_torch.simulation.EquationModel` (one row per stage): per
+    equations' extended-form :class:`~msam_torch.simulation.equations.EquationModel` (one row per stage): per
     component of the extended equation the adjustment, exponent and theta in the data's units."""
     stages = (stage,) * len(models) if isinstance(stage, str) else stage
     for s in stages:

@@ -1,5 +1,5 @@
 """Equation-by-equation models of a whole spec (the diagnosis's one-step predictions and free runs)
-on the one ODE model (:class:`~.model.SystemModel`) and the one :func:`~.solver.simulate`.
+on the one ODE model (:class:`~msam_torch.simulation.ode.SystemModel`) and the one :func:`~.solver.simulate`.
 
 An :class:`EquationModel` is one state equation with its selected adjustment functions, exponents
 and theta, batched over ``B`` parameter sets; ``choice`` -1 leaves a component as in the starting

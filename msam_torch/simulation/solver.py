@@ -4,7 +4,7 @@ Fixed-step methods (``euler``, ``midpoint``, ``rk4``: torchdiffeq's tableaus, ``
 run as an explicit Runge-Kutta loop whose step coefficients are tensors derived from the record's
 time axis; the external signals are interpolated once at all stage times (sixths of a step), and
 every expression of the model that reads no simulated state is tabulated there once
-(:meth:`~.model.SystemModel.stage_rates`), so a stage evaluates only what depends on the states. In
+(:meth:`~msam_torch.simulation.ode.SystemModel.stage_rates`), so a stage evaluates only what depends on the states. In
 forward mode (:mod:`.sensitivities`) the loop runs plain, once per distinct row, and the tangents
 follow by the chain rule of the steps (:func:`_tangents`): a dual tensor carried through the loop
 cost 3 to 5 times a plain one per operation, and torchdiffeq's fixed-grid steps, which multiply by

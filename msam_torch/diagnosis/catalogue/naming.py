@@ -1,17 +1,17 @@
-"""Catalogue names of fitted hypotheses (:mod:`.catalogue`), given only within confidence
+"""Catalogue names of fitted hypotheses (:mod:`msam_torch.diagnosis.catalogue.entries`), given only within confidence
 (docs/design.md section 3).
 
 Each effect hypothesis's *total exponent* on its signal (``gamma`` plus the power of the signal in
 its component: ``c v|v|^-0.3`` is 0.7 on ``v``) gets an interval from the bootstrap trials
-(:mod:`.bootstrap`): the original fit +- two robust standard deviations (1.4826 median absolute
+(:mod:`msam_torch.diagnosis.effects.bootstrap`): the original fit +- two robust standard deviations (1.4826 median absolute
 deviations, so that a trial falling into another optimum does not widen it) of the trials' exponents,
 or of the exponents of copies of the record with its measured states' noise doubled where those
 spread wider (a trial or copy that never left its warm start at the original fit has none of its
 own), never narrower than the catalogue's resolution +-0.2 (neither sees the bias of the weak-form
 estimate or of a smoothed law), plus how far the copies' median moved from the fit
 (:func:`noise_shift`: noise in a regressor biases an exponent). An entry names it only when that
-interval holds the catalogue's exponent and no other entry's (:func:`.catalogue.match`); nothing is moved into an
-interval. A hypothesis whose exponent leaves the sane range (:data:`.hypotheses.SANE_EXPONENT`) or
+interval holds the catalogue's exponent and no other entry's (:func:`~msam_torch.diagnosis.catalogue.entries.match`); nothing is moved into an
+interval. A hypothesis whose exponent leaves the sane range (:data:`~msam_torch.diagnosis.effects.hypotheses.SANE_EXPONENT`) or
 never left its start (no step was accepted: the exponent is not estimated), or whose interval is
 wider than :data:`STABLE_HALF_WIDTH` or rests on fewer than half the trials, is not an effect; nor
 is a start of a form that ended within the interval of that form's best start (:func:`repeated`). The
@@ -56,7 +56,7 @@ class Naming:
 def half_width(boot: Bootstrap | None, c: int, s: int, fitted: float) -> float:
     """Hypothesis ``c``'s exponent interval in slot ``s``, as a half-width about the original fit
     ``fitted``: two robust standard deviations of the exponents of the trials that re-fitted it, or
-    of the copies with doubled noise (:mod:`.bootstrap`) where they spread wider, at least the
+    of the copies with doubled noise (:mod:`msam_torch.diagnosis.effects.bootstrap`) where they spread wider, at least the
     catalogue's tolerance, plus how far the copies' median moved from the fit (:func:`noise_shift`);
     inf when fewer than half of the trials re-fitted it. Trials and copies are warm-started at the
     fit: one whose exponent never left it accepted no step and has no estimate of its own, and is
@@ -80,7 +80,7 @@ def _moved(gamma: torch.Tensor, valid: torch.Tensor, fitted: float) -> torch.Ten
 
 def noise_shift(copies: torch.Tensor, fitted: float) -> float:
     """How far doubling the measured states' noise moved an exponent from the original fit
-    ``fitted``: the median of the ``copies`` that moved (:mod:`.bootstrap`). Noise in a regressor
+    ``fitted``: the median of the ``copies`` that moved (:mod:`msam_torch.diagnosis.effects.bootstrap`). Noise in a regressor
     moves a non-linear law's exponent (errors in variables), and about as far again when its power
     is doubled, in a direction the interval must reach (0 with fewer than two copies)."""
     return abs(float(copies.median()) - fitted) if copies.numel() >= 2 else 0.0
@@ -121,7 +121,7 @@ def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypoth
 
 def _details(entry, reading: catalogue.Reading, roles: catalogue.Roles, total: float, half: float, ok: bool,
              consistent: list[str], loose: bool) -> dict:
-    """What the report says of one hypothesis's name (see :class:`~.report.EquationGap`);
+    """What the report says of one hypothesis's name (see :class:`~msam_torch.diagnosis.report.gap_report.EquationGap`);
     ``consistent``: the entries its interval holds (a name needs exactly one); ``loose``: not an
     effect only because its exponent is held too loosely."""
     on = reading.signal or "its adjustment"
@@ -186,7 +186,7 @@ def repeated(hypotheses: list[Hypothesis], named: Naming, rmse: torch.Tensor) ->
 @dataclass(frozen=True)
 class Pinned:
     """An effect hypothesis held at a catalogue entry's exponent (theta re-fitted): a rival the
-    name of another entry must be told apart from (:func:`.confidence.summary`) even where the
+    name of another entry must be told apart from (:func:`~msam_torch.diagnosis.compare.confidence.summary`) even where the
     free fit of that hypothesis fell into another optimum."""
 
     hypothesis: int  # index into the hypotheses

@@ -48,7 +48,7 @@ def outcomes(names: list[list[str]], rmse: torch.Tensor, is_effect: torch.Tensor
 class Evidence:
     """Out-of-sample errors of every hypothesis: on the held-out rows (C, M') and on the fitted
     training rows, each predicted by a fit of the other blocks (C, M,
-    :func:`.hypotheses.crossed_errors`), with the number of independent rows of each."""
+    :func:`~msam_torch.diagnosis.effects.hypotheses.crossed_errors`), with the number of independent rows of each."""
 
     held_out: torch.Tensor
     crossed: torch.Tensor
@@ -82,7 +82,7 @@ def told_apart(errors: torch.Tensor, best: int, rival: int, draws: torch.Tensor,
     ``1 / (1 - margin)`` times the best's; a non-finite error counts for the rival): a one-sided
     p-value that ``best`` is not better by the margin. ``draws`` (:func:`resamples`) pick contiguous
     blocks of rows; their number is the number of independent rows (rows within a test function's
-    reach share their errors, :meth:`.weak.WeakForm.apart`), and the p-value is at least
+    reach share their errors, :meth:`~msam_torch.diagnosis.stages.rows.WeakForm.apart`), and the p-value is at least
     2^-blocks, the chance that ``best`` wins every block when neither is better."""
     blocks = draws.shape[-1]
     square = lambda c: torch.stack([part.square().sum() for part in torch.tensor_split(errors[c], blocks)])

@@ -1,6 +1,6 @@
 """Parameter and exponent intervals of the reported model: each term of the winning hypothesis's
 equation with its coefficient (theta in the data's units, Eq. 6) and exponent, and their 90 %
-bootstrap percentile intervals over the trials that re-fitted it (:mod:`.bootstrap`)."""
+bootstrap percentile intervals over the trials that re-fitted it (:mod:`msam_torch.diagnosis.effects.bootstrap`)."""
 from __future__ import annotations
 
 import torch

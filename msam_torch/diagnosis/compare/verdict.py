@@ -60,7 +60,7 @@ def equation_verdict(significant: bool, effect: str, confidence: dict, structure
     one held at its catalogue exponent), the data do not tell which explains the gap: inconclusive,
     naming both; "not explained" is left for a gap that only uncatalogued laws fit best. No
     significant effect is "no significant gap" only when the re-fitted start's residual passes
-    ``checks`` (:func:`~.structure.residual_checks`), else inconclusive. Either verdict is
+    ``checks`` (:func:`~msam_torch.diagnosis.stages.structure.residual_checks`), else inconclusive. Either verdict is
     inconclusive where a law whose exponent is held too loosely to be an effect predicts the
     held-out rows better by the null rule's margin (``loose``: what it is and what it beats): the
     data show the gap's law but do not fix it."""
@@ -91,7 +91,7 @@ def no_gap_verdict(checks: dict, hint: str = TRY["residual"]) -> tuple[Verdict, 
 def free_run_reasons(free_run: dict, kind: Verdict) -> list[str]:
     """Why the free runs do not support a verdict of ``kind`` (held-out data, else training): the
     model the verdict rests on diverged, or is worse than the nominal model by more than
-    :data:`NO_WORSE` and the resolution the free runs are checked to (:data:`~.options.AGREEMENT`)
+    :data:`NO_WORSE` and the resolution the free runs are checked to (:data:`~msam_torch.diagnosis.options.AGREEMENT`)
     (where the nominal model diverged: is no closer to the record than its mean,
     :data:`NO_INFORMATION`), or the runs it rests on did not converge (its model's, and the nominal
     model's where that decides the comparison, :func:`_needed`). An explained gap rests on the
@@ -143,7 +143,7 @@ _WORSE = {"retuned": "the estimation is off", "adapted": "the effect does not ca
 
 def overall(gaps: Sequence, significant: bool, name_targets: bool,
             free_run: dict | None = None) -> tuple[Verdict, str, list[str]]:
-    """The report's verdict from its equations' (:class:`~.report.EquationGap`) and the free runs:
+    """The report's verdict from its equations' (:class:`~msam_torch.diagnosis.report.gap_report.EquationGap`) and the free runs:
     inconclusive when :func:`free_run_reasons` finds any; else every explained equation's
     (``in <target>`` when ``name_targets``), followed by the equations left inconclusive and their
     reasons; else inconclusive when an equation is; else not explained when ``significant``; else

@@ -17,7 +17,7 @@ from msam_torch.engine.candidates import FLOOR
 from msam_torch.model.spec import Equation
 from msam_torch.simulation.equations import EquationModel
 
-ADAPTED = 2  # the adapted model's row in the batch of :func:`.compare.models`
+ADAPTED = 2  # the adapted model's row in the batch of :func:`~msam_torch.diagnosis.compare.comparison.models`
 
 
 def power_term(term: str, function, gamma: float, scale: float) -> str:

@@ -3,7 +3,7 @@ their targets, all trials fitted as one batch on the leading axis, warm-started 
 fit (the best effect hypotheses and the re-fitted start only). Beside them, copies of the
 whole record with measurement noise added again to every measured state the rows read: noise in a
 regressor moves a non-linear law's exponent (errors in variables), and about as far again when
-the noise power is doubled: a shift no spread of the trials shows (:func:`.naming.half_width`)."""
+the noise power is doubled: a shift no spread of the trials shows (:func:`~msam_torch.diagnosis.catalogue.naming.half_width`)."""
 from __future__ import annotations
 
 from collections.abc import Callable

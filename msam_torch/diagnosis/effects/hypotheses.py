@@ -118,7 +118,7 @@ def holds_constant(equation: Equation) -> bool:
 def enumerate_hypotheses(equation: Equation, exchanging: dict[int, tuple[str, ...]] | None = None,
                          starts=ADDITIVE_STARTS, offset: bool = False) -> list[Hypothesis]:
     """Every hypothesis of ``equation``; ``exchanging``: the components with exchange references
-    (:meth:`.catalogue.Roles.exchanging`), each also tried as an exchange law of its own signal;
+    (:meth:`~msam_torch.diagnosis.catalogue.entries.Roles.exchanging`), each also tried as an exchange law of its own signal;
     ``offset``: the offset too (:func:`offset_testable`)."""
     found = [Hypothesis("retuned")]
     for i in equation.adjustable:
@@ -216,7 +216,7 @@ def predict_rows(data: EquationData, choices: torch.Tensor, fitted: Fitted) -> t
 def crossed_errors(weak: WeakForm, choices: torch.Tensor, start: torch.Tensor, options: StepOptions, steps: int,
                    q: int, folds: int, reach: int) -> torch.Tensor:
     """Errors (C, M) of every hypothesis on the fitted training rows, each row predicted by a fit of
-    the other ``folds`` blocks (:meth:`.weak.WeakForm.folds`; ``steps`` steps from the exponents
+    the other ``folds`` blocks (:meth:`~msam_torch.diagnosis.stages.rows.WeakForm.folds`; ``steps`` steps from the exponents
     ``start`` (C, 2Q), the full fit's, which saw the block, so never kept; 0: theta alone)."""
     fold, weights = weak.folds(folds, reach)
     crossed = fit(weak.weighted(weights, torch.zeros_like(weights)), choices, start, options, steps, q, exclude_start=True)

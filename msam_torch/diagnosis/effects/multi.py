@@ -2,7 +2,7 @@
 adapted structure becomes the starting model (:mod:`.adapted`) and the diagnosis runs again on
 what remains: where the remaining gap lies (the localised windows of the new start), which
 effect explains it, and whether adding it shrinks the held-out gap by the same null rule and
-verdict checks the first effect passed (:func:`.verdict.equation_verdict`; no threshold of its own).
+verdict checks the first effect passed (:func:`~msam_torch.diagnosis.compare.verdict.equation_verdict`; no threshold of its own).
 The loop stops when no significant gap remains, when the next effect is not accepted, or after
 ``max_effects`` steps.
 

@@ -15,7 +15,7 @@ MODEL_NAMES = {"start": "starting", "retuned": "theta re-fitted", "adapted": "ad
 
 
 def markdown(report, figures: list[Figure]) -> str:
-    """The report (a :class:`~.report.GapReport`) as Markdown, its figures referenced by file name."""
+    """The report (a :class:`~msam_torch.diagnosis.report.gap_report.GapReport`) as Markdown, its figures referenced by file name."""
     shown = {f.name: f for f in figures}
     md = ["# Sim-to-real gap report", "", f"**Verdict: {report.verdict}**", ""]
     md += [f"- {reason}" for reason in report.reasons] + ([""] if report.reasons else [])
@@ -32,7 +32,7 @@ def markdown(report, figures: list[Figure]) -> str:
 
 
 def _in_turn(in_turn: dict) -> list[str]:
-    """The effects added in turn (:mod:`.multi`), each with the held-out errors before and after it."""
+    """The effects added in turn (:mod:`msam_torch.diagnosis.effects.multi`), each with the held-out errors before and after it."""
     if not in_turn.get("effects"):
         return []
     md = ["## Effects in turn", "", "| step | equation | effect | exponent | held-out RMSE before -> after | "
@@ -227,7 +227,7 @@ def _named(naming: dict) -> list[str]:
 def margin(confidence: dict) -> str:
     """The held-out RMSE margin to the best effect hypothesis with another name, if there is one,
     and how often the rival (that one, or one held at a catalogue exponent) predicts as well on
-    held-out rows and within the margin on cross-fitted training rows (:func:`.confidence.apart`)."""
+    held-out rows and within the margin on cross-fitted training rows (:func:`~msam_torch.diagnosis.compare.confidence.apart`)."""
     rival, runner = confidence.get("rival"), confidence["runner_up"]
     if runner is None and rival is None:
         return "no competing hypothesis with another name"

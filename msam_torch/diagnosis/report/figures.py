@@ -112,7 +112,7 @@ def frequency_response(t: np.ndarray, u: np.ndarray, ys: np.ndarray) -> tuple:
 
 
 def render(report, units: Units) -> list[Figure]:
-    """Every figure of ``report`` (a :class:`~.report.GapReport`), in report order."""
+    """Every figure of ``report`` (a :class:`~msam_torch.diagnosis.report.gap_report.GapReport`), in report order."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -2,10 +2,10 @@
 Markdown report with its PNG figures (:mod:`.document`, :mod:`.figures`), the same report as one
 self-contained HTML file (:mod:`.html`) and, on request, TensorBoard event files.
 
-``gap_report.json`` (version 1): ``verdict`` (text) and ``verdict_kind`` (:class:`~.verdict.Verdict`
+``gap_report.json`` (version 1): ``verdict`` (text) and ``verdict_kind`` (:class:`~msam_torch.diagnosis.compare.verdict.Verdict`
 value), ``equations`` (one :class:`EquationGap` each, its records typed in :mod:`.records`),
 ``measures`` (``one_step`` and ``free_run`` per data set and model), ``data``, ``options``,
-``config``, ``seconds``; its JSON schema is generated from these types (:mod:`.schema`).
+``config``, ``seconds``; its JSON schema is generated from these types (:mod:`.json_schema`).
 """
 from __future__ import annotations
 
@@ -33,21 +33,21 @@ class EquationGap:
     """The diagnosis of one state equation.
 
     ``significant``: an effect passed the null-verdict rule; ``verdict_kind``: the
-    :class:`~.verdict.Verdict`, ``verdict`` its text ('gap explained by <effect>', 'no
+    :class:`~msam_torch.diagnosis.compare.verdict.Verdict`, ``verdict`` its text ('gap explained by <effect>', 'no
     significant gap' or 'gap not explained by a catalogued effect'); ``effect``: the
     catalogue name of the best hypothesis (or 'power law, no catalogued effect'), None without a
     gap; ``hypothesis``/``exponent``: the winning hypothesis and its fitted exponent;
     ``catalogue_exponent``: the catalogue's total exponent of the named effect (a number, or
     [low, high] for a range; msam_torch/diagnosis/catalogue/catalogue.yaml), else None; ``naming``: for a
-    significant gap, how the best hypothesis reads in the catalogue (:mod:`.naming`): ``text``,
+    significant gap, how the best hypothesis reads in the catalogue (:mod:`msam_torch.diagnosis.catalogue.naming`): ``text``,
     ``total_exponent`` +- ``half_width`` (bootstrap) ``on`` its signal, the entry's ``domain``,
     ``description`` and ``reference``, the ``quantities`` involved, the ``assumed_quantities``
-    (undeclared, :mod:`.catalogue`) and the equation ``at_catalogue_exponent`` (the best
+    (undeclared, :mod:`msam_torch.diagnosis.catalogue.entries`) and the equation ``at_catalogue_exponent`` (the best
     hypothesis held at its entry's exponent, theta re-fitted; None without one); ``*_equation``: the
     starting, theta-retuned and adapted equations; ``confidence``: ``margin`` (held-out RMSE of
     the best hypothesis with another name, relative), ``runner_up``, the ``rival`` hardest to tell
     apart on out-of-sample rows and ``apart_p``, ``apart_p_held_out``, ``apart_p_training``
-    (:func:`.confidence.apart`),
+    (:func:`~msam_torch.diagnosis.compare.confidence.apart`),
     ``win_frequency`` over ``bootstrap_trials`` and the ``outcomes`` counted; ``improvement``: held-out weak-form RMSE of
     the retuned and adapted models and the rule applied; ``structure_left``: residual structure
     the adapted model leaves, as a share of the retuned model's; ``components``: adjustable
@@ -55,7 +55,7 @@ class EquationGap:
     hypothesis, best first; ``where``: flagged fraction, time windows, state regions;
     ``estimator``: the weak form's test functions and the derivative estimator; ``intervals``:
     each term of the adapted model with its coefficient and exponent and their 90 % bootstrap
-    intervals (:mod:`.intervals`; empty without bootstrap trials' fits).
+    intervals (:mod:`msam_torch.diagnosis.compare.intervals`; empty without bootstrap trials' fits).
     """
 
     target: str
@@ -87,7 +87,7 @@ class EquationGap:
 @dataclass(frozen=True)
 class GapReport:
     """Where the gap lies, which effect causes it and how far it shrinks; ``str()`` summarises.
-    ``verdict_kind``: the :class:`~.verdict.Verdict`; ``verdict``: its text (every explained
+    ``verdict_kind``: the :class:`~msam_torch.diagnosis.compare.verdict.Verdict`; ``verdict``: its text (every explained
     equation's, with remarks)."""
 
     verdict_kind: Verdict

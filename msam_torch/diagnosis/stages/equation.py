@@ -1,7 +1,7 @@
-"""One state equation's diagnosis, stage by stage: weak-form rows (:mod:`.weak`) -> every
-hypothesis fitted at once (:mod:`.hypotheses`) -> held-out RMSE -> bootstrap trials
-(:mod:`.bootstrap`) -> catalogue names (:mod:`.naming`) -> null rule and confidence
-(:mod:`.confidence`) -> residual structure left (:mod:`.structure`) -> verdict (:mod:`.verdict`)
+"""One state equation's diagnosis, stage by stage: weak-form rows (:mod:`msam_torch.diagnosis.stages.rows`) -> every
+hypothesis fitted at once (:mod:`msam_torch.diagnosis.effects.hypotheses`) -> held-out RMSE -> bootstrap trials
+(:mod:`msam_torch.diagnosis.effects.bootstrap`) -> catalogue names (:mod:`msam_torch.diagnosis.catalogue.naming`) -> null rule and confidence
+(:mod:`msam_torch.diagnosis.compare.confidence`) -> residual structure left (:mod:`.structure`) -> verdict (:mod:`msam_torch.diagnosis.compare.verdict`)
 -> where the starting model fails (:mod:`.localise`)."""
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ from msam_torch.simulation.equations import EquationModel
 
 @dataclass(frozen=True)
 class EquationDiagnosis:
-    """The gap of one equation, its models for the comparison (:func:`.compare.compare`) and the
+    """The gap of one equation, its models for the comparison (:func:`~msam_torch.diagnosis.compare.comparison.compare`) and the
     arrays its plots draw."""
 
     gap: EquationGap
@@ -159,8 +159,8 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
 def _pinned_rivals(spec: ModelSpec, extended: Equation, equation: Equation, hypotheses: list[Hypothesis],
                    weak: WeakForm, choices: torch.Tensor, starts: torch.Tensor, step_options: StepOptions,
                    nominal: torch.Tensor, folds: int, reach: int) -> confidence.Pinned | None:
-    """Out-of-sample evidence (:class:`.confidence.Evidence`), entry names and fitted equations of
-    the effect hypotheses pinned at catalogue exponents (:func:`.naming.pinned`) whose fitted theta
+    """Out-of-sample evidence (:class:`~msam_torch.diagnosis.compare.confidence.Evidence`), entry names and fitted equations of
+    the effect hypotheses pinned at catalogue exponents (:func:`~msam_torch.diagnosis.catalogue.naming.pinned`) whose fitted theta
     has the sign their entry asks and whose held-out errors are finite; None without any."""
     pins = pinned(spec, equation, hypotheses)
     if not pins:
@@ -185,7 +185,7 @@ def _pinned_rivals(spec: ModelSpec, extended: Equation, equation: Equation, hypo
 
 def _loose(equation: Equation, hypotheses: list[Hypothesis], named: Naming, rmse: torch.Tensor, reference: int,
            target_rms: float, options: DiagnoseOptions) -> str | None:
-    """The law held too loosely to be an effect (:attr:`.naming.Naming.loose`) with the least
+    """The law held too loosely to be an effect (:attr:`~msam_torch.diagnosis.catalogue.naming.Naming.loose`) with the least
     held-out RMSE, where it beats the ``reference`` hypothesis (the best effect, else the re-fitted
     start) by the null rule's margin: what it is and what it beats; else None."""
     candidates = named.loose & torch.isfinite(rmse)
@@ -203,7 +203,7 @@ def _loose(equation: Equation, hypotheses: list[Hypothesis], named: Naming, rmse
 
 
 def _form(hypotheses: list[Hypothesis], c: int) -> set[int]:
-    """The hypotheses of ``c``'s form (:attr:`~.hypotheses.Hypothesis.form`): its starts."""
+    """The hypotheses of ``c``'s form (:attr:`~msam_torch.diagnosis.effects.hypotheses.Hypothesis.form`): its starts."""
     return {k for k, h in enumerate(hypotheses) if h.form == hypotheses[c].form}
 
 

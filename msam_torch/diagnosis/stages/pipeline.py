@@ -2,10 +2,10 @@
 how far it shrinks.
 
 Each state equation is diagnosed in stages (:mod:`.equation`); then the starting, theta-retuned
-and adapted models are compared one-step and in free run (:mod:`.compare`) and the equations'
-verdicts make the report's (:mod:`.verdict`). A config evaluated by simulation is diagnosed by
+and adapted models are compared one-step and in free run (:mod:`msam_torch.diagnosis.compare.comparison`) and the equations'
+verdicts make the report's (:mod:`msam_torch.diagnosis.compare.verdict`). A config evaluated by simulation is diagnosed by
 :mod:`.simulated`. Accepted effects are added to the model and what remains is diagnosed again,
-effect after effect (:mod:`.multi`).
+effect after effect (:mod:`msam_torch.diagnosis.effects.multi`).
 """
 from __future__ import annotations
 
@@ -43,7 +43,7 @@ def diagnose(config: Config | dict | str | Path, data: DataArgument = None, vali
     held-out data in the same forms (default: the config's validation range or file; without
     any, alternate time blocks of the training record are held out). Paths in the config are
     relative to ``base_dir`` (default: the config file's folder). With ``options.max_effects``
-    above 1, effects are added in turn, at most that many (:func:`.multi.in_turn`).
+    above 1, effects are added in turn, at most that many (:func:`~msam_torch.diagnosis.effects.multi.in_turn`).
     """
     check_solver(options.solver)
     if base_dir is None:

@@ -2,9 +2,9 @@
 records whose states are not all measured (the paper's section 2 alternative).
 
 Which: Algorithm 1 runs on the simulated outputs (:func:`msam_torch.run.adapt.adapt`); each adjusted
-component is named from the catalogue (:mod:`.catalogue`). How far: free runs of the starting,
+component is named from the catalogue (:mod:`msam_torch.diagnosis.catalogue.entries`). How far: free runs of the starting,
 theta-retuned and adapted models on the training and held-out records; the null rule
-(:mod:`.confidence`) on the held-out free-run RMSE says whether the adaptation is significant;
+(:mod:`msam_torch.diagnosis.compare.confidence`) on the held-out free-run RMSE says whether the adaptation is significant;
 without a significant one, "no significant gap" needs the re-fitted start's held-out free-run
 residual to look like measurement noise (:func:`.structure.whiteness`), else inconclusive.
 Where: the remaining gap of the adapted model, localised on the one-step rows of every equation

@@ -111,7 +111,7 @@ def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, o
 
 def relevant(share: float, rms: float, target_rms: float, relative: float, absolute: float) -> bool:
     """Whether removing ``share`` of a residual's mean square (RMS ``rms``) would lower its RMS by the
-    null rule's margins (:func:`.confidence.significant`): structure a test finds beyond chance that
+    null rule's margins (:func:`~msam_torch.diagnosis.compare.confidence.significant`): structure a test finds beyond chance that
     no effect could remove by a relevant amount is no gap."""
     rms = torch.tensor(rms, dtype=torch.float64)
     return bool(significant(rms * math.sqrt(max(0.0, 1.0 - share)), rms, target_rms, relative, absolute))
