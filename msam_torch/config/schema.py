@@ -77,8 +77,8 @@ class ComponentConfig(_Section):
 class EquationConfig(_Section):
     """One state equation: its target derivative, components and adjustment set F."""
 
-    target: str
-    components: list[ComponentConfig] = Field(min_length=1)
+    target: str = Field(description="the derivative this equation models, e.g. x_ddot")
+    components: list[ComponentConfig] = Field(min_length=1, description="the terms theta_i M_i of the equation (Eq. 2)")
     adjustments: list[str] = Field(min_length=1, description="adjustment functions f; abs(.) -> |f|^g, else sign(f)|f|^g")
 
 
@@ -100,8 +100,8 @@ Quantities = Annotated[list[Quantity], BeforeValidator(lambda v: [v] if isinstan
 class SignalQuantity(_Section):
     """What a signal is (the catalogue's roles come from it, docs/design.md section 3); units optional."""
 
-    quantity: Quantity
-    unit: Optional[str] = None
+    quantity: Quantity = Field(description="what the signal is: position, velocity, current, level, temperature, ...")
+    unit: Optional[str] = Field(None, description="its unit, as the report's axes write it")
 
 
 def _plain_quantity(value):
@@ -113,7 +113,7 @@ class EffectConfig(_Section):
     """A catalogued physical effect ``theta' M |s|^gamma`` (msam_torch/diagnosis/catalogue/catalogue.yaml has the
     bundled ones in the same format)."""
 
-    name: str = Field(min_length=1)
+    name: str = Field(min_length=1, description="the name a verdict gives the effect")
     domain: str = Field("user", description="the domain it belongs to (bundled: the catalogue's group)")
     acts_on: Quantities = Field(description="quantity (or quantities) whose balance the effect enters: the state "
                                             "whose derivative the equation gives, e.g. velocity for x_ddot")
@@ -127,7 +127,7 @@ class EffectConfig(_Section):
     sign: Literal["any", "same", "opposite"] = Field(
         "any", description="sign of the effect's theta relative to the starting component's")
     description: str = Field(min_length=1, description="one line of physics")
-    reference: str = Field(min_length=1)
+    reference: str = Field(min_length=1, description="where the law comes from")
 
     @model_validator(mode="after")
     def _ordered(self):
@@ -137,10 +137,12 @@ class EffectConfig(_Section):
 
 
 class ModelConfig(_Section):
-    states: list[str] = Field(min_length=1)
-    inputs: list[str] = []
-    parameters: dict[str, Number] = {}
-    equations: list[EquationConfig] = Field(min_length=1)
+    """The starting model (Eq. 2): its signals, parameters and state equations."""
+
+    states: list[str] = Field(min_length=1, description="state signals; derivatives are named by suffix (x_dot, x_ddot)")
+    inputs: list[str] = Field([], description="input signals, read from the data")
+    parameters: dict[str, Number] = Field({}, description="named nominal parameters the thetas are expressions of")
+    equations: list[EquationConfig] = Field(min_length=1, description="one per modelled derivative")
     quantities: dict[str, Annotated[SignalQuantity, BeforeValidator(_plain_quantity)]] = Field(
         {}, description="signal -> quantity (position, velocity, angle, angular_velocity, current, voltage, level, "
                         "flow, temperature, concentration, population, ...) or {quantity, unit}; the catalogue's "
@@ -151,9 +153,9 @@ class ModelConfig(_Section):
 class RangeConfig(_Section):
     """A slice of the record, by time (default) or by sample index; bounds inclusive, open if null."""
 
-    start: Optional[float] = None
-    stop: Optional[float] = None
-    by: Literal["time", "index"] = "time"
+    start: Optional[float] = Field(None, description="first time (or index) of the slice; null: the record's start")
+    stop: Optional[float] = Field(None, description="last time (or index) of the slice; null: the record's end")
+    by: Literal["time", "index"] = Field("time", description="whether start and stop are times or sample indices")
 
 
 class DataConfig(_Section):
@@ -165,8 +167,8 @@ class DataConfig(_Section):
     time: Optional[str] = Field(None, description="time column (or give sample_time)")
     sample_time: Optional[float] = Field(None, gt=0, description="sampling period when there is no time column")
     columns: dict[str, str] = Field({}, description="signal name -> column name, for every measured signal")
-    train: RangeConfig = RangeConfig()
-    validation: Optional[RangeConfig] = None
+    train: RangeConfig = Field(RangeConfig(), description="the slice of the record fitted")
+    validation: Optional[RangeConfig] = Field(None, description="a held-out slice of the same record (or give validation_file)")
     parametric_error: float = Field(0.0, ge=0, description="total relative error of the nominal parameters")
     noise: float = Field(0.0, ge=0, description="simulated measurement noise, as a fraction of each signal's std")
     seed: int = Field(0, ge=0, lt=2**64, description="random seed (0 <= seed < 2**64)")
@@ -229,12 +231,12 @@ class AdaptationConfig(_Section):
     damping: float = Field(0.0, ge=0, description="Levenberg-Marquardt damping of the step")
     gamma_limit: float = Field(20.0, gt=0, description="|gamma| beyond which a candidate is marked diverged")
     chunk_size: int = Field(4096, ge=1, description="candidates per batched chunk (bounds memory)")
-    dtype: Literal["float64", "float32"] = "float64"
+    dtype: Literal["float64", "float32"] = Field("float64", description="floating-point type of every tensor")
     device: str = Field("cpu", description="torch device, one the installed torch can use ('cpu', 'cuda', 'cuda:1')")
     evaluation: Annotated[Any, Strategy("evaluator")] = Field(
         "algebraic", description="candidate outputs from estimated states (Eq. 6) or by simulation "
                                  "(msam_torch.run.evaluators.EVALUATORS, or an evaluator object)")
-    simulation: SimulationConfig = SimulationConfig()
+    simulation: SimulationConfig = Field(SimulationConfig(), description="options of simulation-based evaluation")
 
     @field_validator("device")
     @classmethod

@@ -8,8 +8,6 @@ from msam_torch.config.to_spec import to_spec
 from msam_torch.data import datasets
 from msam_torch.data.loading import load_datasets
 from msam_torch.diagnosis import NOT_CATALOGUED, Verdict, diagnose
-
-# to move into the package (experiments/README.md, "Tests and experiments")
 from msam_torch.diagnosis.compare.refit import force_error, named_laws, retuned_at, retuned_start, rival
 from msam_torch.engine.candidates import EquationData
 from msam_torch.errors import DataError
