@@ -3,7 +3,7 @@
 For each case ``adapt`` runs twice on the same noisy training frame: ``preset=paper`` (the literal
 step, Savitzky-Golay derivatives, nominal theta fixed; what a frame got before) and the default
 (``auto``: the ``measured`` preset). Printed: the adapted equation and the free-run R^2 on the
-held-out frame (``MSAM.score``). Cases: the quadratic-drag oscillator of tests/test_estimator.py
+held-out frame (``MSAM.score``). Cases: the quadratic-drag oscillator of tests/run/test_estimator.py
 under three excitations, withheld-effect cases of ``msam_torch.data.systems.WITHHELD`` (0.5 % noise),
 and zoo cases from seeds that no test or figure uses (their ``derivatives`` key dropped, so the
 preset chooses).

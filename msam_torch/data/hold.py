@@ -33,7 +33,7 @@ exponent by 0.2. A state that settles within half a sample (``r >``
 :data:`SAMPLED`) is left as it is: its transient is not sampled, and the first-order correction
 overshoots. On ``x' = -a x + b u`` under a PRBS, nominal coefficients 10 % off, the correction
 leaves a tenth of the trapezoid rule's error on ``x^2`` for ``r`` from 0.04 to 1.1
-(``tests/test_hold.py``).
+(``tests/data/test_hold.py``).
 
 The correction is exact for a test function that is constant over the relaxation. A test function
 only a few samples wide changes across it, and a record interpolated between its samples for such

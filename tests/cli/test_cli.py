@@ -70,7 +70,7 @@ def test_expression_outside_the_whitelist_is_rejected_with_its_key(tmp_path, cap
 @pytest.mark.slow
 def test_a_closed_stdout_is_one_line_and_status_2_with_the_files_complete(tmp_path):
     """`msam run ... | head` closing the pipe first: no traceback, one line naming the broken pipe,
-    the files kept (the same for diagnose: tests/test_faults.py)."""
+    the files kept (the same for diagnose: tests/end_to_end/test_faults.py)."""
     import subprocess
     import sys
 

@@ -1,7 +1,7 @@
 """Small copies of real benchmark records that ship with msam-torch (nothing is downloaded).
 
 Each folder holds the data files and a README.md with the source, citation, terms and exactly what
-was sliced from the full record (``experiments/make_datasets.py`` rebuilds them)::
+was sliced from the full record (``experiments/realdata/make_datasets.py`` rebuilds them)::
 
     >>> from msam_torch import datasets
     >>> datasets.names()
