@@ -90,4 +90,4 @@ class Strategy:
             self._check, serialization=core_schema.plain_serializer_function_ser_schema(label, when_used="json"))
 
     def __get_pydantic_json_schema__(self, schema, handler):
-        return {"type": "string"}
+        return {"type": "string", "strategy": self.kind}  # the kind names its registry (run.plan.config_schema)

@@ -2,7 +2,6 @@
 lengths, sampling rates and noise levels, for the benchmarks and tests of record length."""
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import replace
 
 import numpy as np
@@ -41,7 +40,7 @@ def finer_records(case: str, seconds: float, small: int, rows: int, noise: float
     from scipy.interpolate import BPoly
 
     effect = WITHHELD[case]
-    system = dataclasses.replace(SYSTEMS[effect.system], t_end=seconds, samples=small)
+    system = replace(SYSTEMS[effect.system], t_end=seconds, samples=small)
     truth = {k: v.numpy() for k, v in measure(system).items()}
     rng = np.random.default_rng(seed)
     out = {}

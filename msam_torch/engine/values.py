@@ -99,3 +99,8 @@ class Evaluator(Protocol):
     def starting_measures(self, data, theta: torch.Tensor, theta_fixed: torch.Tensor) -> dict:
         """Measures (fitness, sum_abs_error, rho; each (T,)) of the unadjusted starting model."""
         ...
+
+
+def simulates(evaluator) -> bool:
+    """Whether ``evaluator`` judges candidates by simulation (its ``simulates``; absent: algebraically)."""
+    return bool(getattr(evaluator, "simulates", False))

@@ -12,6 +12,7 @@ import torch
 
 from msam_torch.data.loading import Dataset
 from msam_torch.engine.trainer import Trainer
+from msam_torch.engine.values import simulates
 from msam_torch.errors import ConfigError
 from msam_torch.model.notation import format_component, format_equation
 from msam_torch.model.spec import Equation
@@ -83,7 +84,7 @@ def simulation_trainer(plan: Plan, factory: Callable[[Plan], Trainer]) -> Traine
     trainer = factory(plan)
     if not isinstance(trainer, Trainer):
         raise ConfigError("trainer_factory", f"simulation-based evaluation needs a Trainer, got {type(trainer).__name__}")
-    if not getattr(trainer.evaluator, "simulates", False):  # the factory's default evaluator
+    if not simulates(trainer.evaluator):  # the factory's default evaluator
         trainer.evaluator = plan.evaluator
     return trainer
 

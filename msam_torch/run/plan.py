@@ -41,7 +41,7 @@ from msam_torch.data.derivatives import ESTIMATORS, DerivativeEstimator
 from msam_torch.data.loading import DataArgument, Dataset, derivative_estimator
 from msam_torch.engine.step_rules import STEP_SIZES
 from msam_torch.engine.trainer import Trainer
-from msam_torch.engine.values import Evaluator, StepOptions
+from msam_torch.engine.values import Evaluator, StepOptions, simulates
 from msam_torch.errors import ConfigError
 from msam_torch.model.spec import ModelSpec
 from msam_torch.run.evaluators import EVALUATORS
@@ -77,7 +77,7 @@ class Plan:
     @property
     def simulates(self) -> bool:
         """The evaluator judges candidates by simulation (its ``simulates``; else algebraically)."""
-        return bool(getattr(self.evaluator, "simulates", False))
+        return simulates(self.evaluator)
 
 
 def updated(config: Config, settings: dict, origin: str) -> Config:
@@ -156,21 +156,22 @@ def prepare(config: Config, in_memory: bool = False, measured: bool = False, **s
     if strategies:
         config = with_strategies(config, **strategies)
     evaluator = EVALUATORS.resolve(config.adaptation.evaluation)
-    config = with_preset(config, measured, simulated=bool(getattr(evaluator, "simulates", False)))
+    config = with_preset(config, measured, simulated=simulates(evaluator))
     a = config.adaptation
     return Plan(config, to_spec(config.model), derivative_estimator(config.data, in_memory),
                 evaluator, step_options(config), getattr(torch, a.dtype), torch.device(a.device))
 
 
-REGISTRIES = {("DataConfig", "derivatives"): ESTIMATORS, ("AdaptationConfig", "step_size"): STEP_SIZES,
-              ("AdaptationConfig", "evaluation"): EVALUATORS}  # the config keys that name a strategy
+REGISTRIES = {r.kind: r for r in (ESTIMATORS, STEP_SIZES, EVALUATORS)}  # the registries config keys name
 
 
 def config_schema() -> dict:
-    """The JSON schema of a config, every key that names a strategy listing the registered names."""
+    """The JSON schema of a config, every key that names a strategy listing its registry's names."""
     schema = Config.model_json_schema()
-    for (section, key), registry in REGISTRIES.items():
-        schema["$defs"][section]["properties"][key]["enum"] = list(registry.names)
+    for section in schema["$defs"].values():
+        for node in section.get("properties", {}).values():
+            if "strategy" in node:
+                node["enum"] = list(REGISTRIES[node["strategy"]].names)
     return schema
 
 
