@@ -1,3 +1,7 @@
+import os
+import shutil
+import tempfile
+
 import pytest
 import torch
 
@@ -12,7 +16,14 @@ def _seed_and_guard_globals():
 
 
 def pytest_configure(config):
-    """The allocator setting the command-line tool runs under (msam_torch.engine.allocator)."""
+    """The allocator setting the command-line tool runs under (msam_torch.engine.allocator), and a
+    cache folder of the session's own (msam_torch.data.cache), for it and the commands it starts."""
     from msam_torch.engine.allocator import keep_freed_memory
 
     keep_freed_memory()
+    config._msam_cache = tempfile.mkdtemp(prefix="msam-cache-")
+    os.environ["MSAM_CACHE_DIR"] = config._msam_cache
+
+
+def pytest_unconfigure(config):
+    shutil.rmtree(getattr(config, "_msam_cache", ""), ignore_errors=True)

@@ -13,6 +13,7 @@ from typing import Callable, Mapping
 import torch
 from torchdiffeq import odeint
 
+from msam_torch.data.cache import cached
 from msam_torch.errors import ConfigError
 from msam_torch.model.spec import derivative_name, split_derivative
 
@@ -83,11 +84,16 @@ def get_system(name: str, key: str = "data.system") -> System:
 
 def measure(system: System, parameters: Mapping[str, float] | None = None, dtype=torch.float64,
              rtol: float = 1e-10, atol: float = 1e-10) -> dict[str, torch.Tensor]:
-    """Simulate ``system`` on its grid; return ``t``, states, exact derivatives and inputs (N,)."""
+    """Simulate ``system`` on its grid; return ``t``, states, exact derivatives and inputs (N,).
+
+    The trajectory is kept in :func:`~msam_torch.data.cache.cached` under a fingerprint of the
+    system's code and values, so a system is integrated once per machine."""
     p = dict(system.parameters if parameters is None else parameters)
     t = torch.linspace(0.0, system.t_end, system.samples, dtype=dtype)
     func = lambda tt, s: system.rhs(tt, s, p, {k: u(tt) for k, u in system.inputs.items()})
-    trajectory = odeint(func, torch.tensor(system.initial, dtype=dtype), t, rtol=rtol, atol=atol, method="dopri5")
+    integrate = lambda: odeint(func, torch.tensor(system.initial, dtype=dtype), t, rtol=rtol, atol=atol,
+                               method="dopri5")
+    trajectory = cached(integrate, "system", system, p, dtype, rtol, atol)
     inputs = {k: u(t) for k, u in system.inputs.items()}
     rates = system.rhs(t, trajectory, p, inputs)
     signals = {"t": t, **inputs}
@@ -129,7 +135,8 @@ def multisine(frequencies: tuple[float, ...], amplitude: float, offset: float = 
     norm = math.sqrt(k / 2)
 
     def u(t):
-        return offset + amplitude * sum(torch.sin(w * t + p) for w, p in zip(frequencies, phases)) / norm
+        w, phi = (torch.tensor(v, dtype=t.dtype, device=t.device) for v in (frequencies, phases))
+        return offset + amplitude * torch.sin(t.unsqueeze(-1) * w + phi).sum(-1) / norm
 
     return u
 

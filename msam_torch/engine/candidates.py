@@ -14,6 +14,7 @@ import itertools
 from dataclasses import dataclass, field, fields, replace
 from typing import Callable, Mapping, Optional
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -84,7 +85,7 @@ class EquationData:
         component by its RMS; ``'functions'`` divides the adjustment functions only (components and
         theta stay in the data's units)."""
         values = {k: v if v.dim() == 2 else v.unsqueeze(0) for k, v in signals.items()}
-        shape = torch.broadcast_shapes(*(v.shape for v in values.values()))
+        shape = torch.Size(np.broadcast_shapes(*(v.shape for v in values.values())))  # torch's imports sympy
         y = values[equation.target].expand(shape)
 
         def evaluate(expression):

@@ -109,8 +109,9 @@ def simulate_equations(spec: ModelSpec, models: Sequence[EquationModel], t: torc
 def fastest_decay(spec: ModelSpec, models: Sequence[EquationModel], points: Mapping[str, torch.Tensor]) -> torch.Tensor:
     """The largest magnitude of the decaying modes of each row (B,): the eigenvalues with negative
     real part of the Jacobian ``d(dx/dt)/dx`` of the whole model at each of the K ``points`` (``t``,
-    every simulated state and input, each (K,)), by forward mode (:func:`torch.func.jvp`), the
-    median over the points (0 without any). An explicit fixed-step solver is stable on a mode only
+    every simulated state and input, each (K,)), the median over the points (0 without any). The
+    rows of the Jacobian by reverse mode, one per state (every point's rate depends on its own state
+    alone): torch's forward mode imports its compiler on first use, a second of start-up. An explicit fixed-step solver is stable on a mode only
     while the step times its magnitude lies within the method's interval (:data:`~.solver.STABILITY`);
     a growing mode (positive real part) diverges at any step. The median, not the greatest: a
     bounded law with an unbounded slope (Coulomb friction's ``w|w|^-0.9`` near ``w = 0``) makes a
@@ -122,10 +123,13 @@ def fastest_decay(spec: ModelSpec, models: Sequence[EquationModel], points: Mapp
         else x.new_zeros(b, k, 0)
     rhs = model.rhs(p, x.dtype, x.device)
     rate = lambda x: rhs(model.values(points["t"].expand(b, k), x, external), x)
-    eye = torch.eye(x.shape[-1], dtype=x.dtype, device=x.device)
-    with torch.no_grad():
-        columns = [torch.func.jvp(rate, (x,), (e.expand_as(x).clone(),))[1] for e in eye]
-    eigenvalues = torch.linalg.eigvals(torch.stack(columns, -1).nan_to_num(0.0, 0.0, 0.0))  # (B, K, S)
+    with torch.enable_grad():
+        x = x.detach().requires_grad_()
+        rates = rate(x)
+        rows = [torch.autograd.grad(rates[..., i].sum(), x, retain_graph=True, allow_unused=True)[0]
+                if rates.requires_grad else None for i in range(x.shape[-1])]
+    rows = torch.stack([torch.zeros_like(x) if r is None else r for r in rows], -2).detach()
+    eigenvalues = torch.linalg.eigvals(rows.nan_to_num(0.0, 0.0, 0.0))  # (B, K, S)
     decaying = torch.where(eigenvalues.real < 0, eigenvalues.abs(), torch.zeros_like(eigenvalues.real))
     return decaying.amax(-1).median(-1).values
 
