@@ -161,7 +161,9 @@ class RangeConfig(_Section):
 class DataConfig(_Section):
     """Where the measurements come from: a simulated controlled case or a measured data file."""
 
-    system: Optional[str] = Field(None, description="name of a simulated system in msam_torch.data.systems")
+    system: Optional[str] = Field(None, description="name of a simulated system in msam_torch.data.systems "
+                                  "(simulated once per machine, then read from the cache folder: MSAM_CACHE_DIR, "
+                                  "empty for none, else the user cache folder)")
     file: Optional[str] = Field(None, description="CSV or Parquet file, relative to the config file")
     validation_file: Optional[str] = Field(None, description="held-out record (default: the validation range of 'file')")
     time: Optional[str] = Field(None, description="time column (or give sample_time)")

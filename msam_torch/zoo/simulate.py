@@ -3,9 +3,11 @@ on a dense grid), independently of :mod:`msam_torch.simulation`; and the share o
 withheld effect contributes."""
 from __future__ import annotations
 
+from bisect import bisect_right
+
 import numpy as np
 from scipy.integrate import solve_ivp
-from scipy.interpolate import CubicSpline, interp1d
+from scipy.interpolate import CubicSpline
 
 from msam_torch.zoo.system import System, term_value
 
@@ -19,15 +21,14 @@ def simulate(system: System, t: np.ndarray, inputs: dict, initial: dict, effect=
     interpolated by cubic splines for the ``smooth`` ones, else held from each dense point to the
     next); None when the solver fails or a trajectory leaves the finite numbers."""
     dense = dense_grid(t)
-    interpolants = {u: CubicSpline(dense, v) if u in smooth else interp1d(dense, v, kind="previous", assume_sorted=True)
-                    for u, v in inputs.items()}
+    interpolants = {u: _spline(dense, v) if u in smooth else _held(dense, v) for u, v in inputs.items()}
     derivative = system.derivative_map()
     states = list(system.states)
     atol = [TOLERANCE * 1e-2 * system.magnitude[x] for x in states]
 
     def rhs(time, y):
         values = {x: v for x, v in zip(states, y)}
-        values.update({u: float(interpolants[u](time)) for u in system.inputs})
+        values.update({u: interpolants[u](time) for u in system.inputs})
         rates = system.state_rates(values, effect)
         return [values[derivative[x]] if derivative[x] in values else rates[derivative[x]] for x in states]
 
@@ -37,6 +38,31 @@ def simulate(system: System, t: np.ndarray, inputs: dict, initial: dict, effect=
     if not solution.success or not np.all(np.isfinite(solution.y)) or solution.y.shape[1] != t.size:
         return None
     return dict(zip(states, solution.y))
+
+
+def _held(grid: np.ndarray, values: np.ndarray):
+    """``interp1d(grid, values, kind="previous")`` at one time, without its per-call array overhead
+    (the solver asks about a hundred thousand times a case): the value at the last grid point at or
+    before ``time``."""
+    points, values = grid.tolist(), values.tolist()
+    return lambda time: values[max(bisect_right(points, time), 1) - 1]
+
+
+def _spline(grid: np.ndarray, values: np.ndarray):
+    """The not-a-knot :class:`~scipy.interpolate.CubicSpline` through ``values`` at one time: its
+    pieces' coefficients evaluated by Horner's rule in the piece holding ``time`` (the last piece
+    at the grid's end)."""
+    spline = CubicSpline(grid, values)
+    points, pieces = grid.tolist(), spline.c.T.tolist()
+    last = len(pieces) - 1
+
+    def value(time):
+        i = min(max(bisect_right(points, time) - 1, 0), last)
+        s = time - points[i]
+        c3, c2, c1, c0 = pieces[i]
+        return ((c3 * s + c2) * s + c1) * s + c0
+
+    return value
 
 
 def dense_grid(t: np.ndarray) -> np.ndarray:
