@@ -49,7 +49,8 @@ TRY = {"estimation": "try another --half-width or a held-out record from another
 
 
 def equation_verdict(significant: bool, effect: str, confidence: dict, structure_left: float,
-                     checks: dict, options: DiagnoseOptions, loose: str | None = None) -> tuple[Verdict, list[str]]:
+                     checks: dict, options: DiagnoseOptions, loose: str | None = None,
+                     located: str | None = None) -> tuple[Verdict, list[str]]:
     """One equation and its reasons; ``effect``: the name of the best effect hypothesis. A
     significant effect (null rule) is explained when it has a catalogue name, predicts
     out-of-sample rows better than every effect hypothesis with another name beyond chance
@@ -63,11 +64,13 @@ def equation_verdict(significant: bool, effect: str, confidence: dict, structure
     ``checks`` (:func:`~msam_torch.diagnosis.stages.structure.residual_checks`), else inconclusive. Either verdict is
     inconclusive where a law whose exponent is held too loosely to be an effect predicts the
     held-out rows better by the null rule's margin (``loose``: what it is and what it beats): the
-    data show the gap's law but do not fix it."""
+    data show the gap's law but do not fix it. No significant effect where the starting model
+    fails in a region of the record (``located``: where, how much, the fixed components that read
+    it) is a gap no hypothesis expresses: not explained, never "no significant gap"."""
     if loose is not None:
         return Verdict.INCONCLUSIVE, [f"{loose}: these data do not fix the law of the gap", TRY["loose"]]
     if not significant:
-        return no_gap_verdict(checks)
+        return (Verdict.NOT_EXPLAINED, [located]) if located is not None else no_gap_verdict(checks)
     named = effect != NOT_CATALOGUED
     rival = confidence.get("rival")
     if confidence["apart_p"] > options.apart_level and (named or rival not in (None, NOT_CATALOGUED)):
@@ -145,17 +148,19 @@ def overall(gaps: Sequence, significant: bool, name_targets: bool,
             free_run: dict | None = None) -> tuple[Verdict, str, list[str]]:
     """The report's verdict from its equations' (:class:`~msam_torch.diagnosis.report.gap_report.EquationGap`) and the free runs:
     inconclusive when :func:`free_run_reasons` finds any; else every explained equation's
-    (``in <target>`` when ``name_targets``), followed by the equations left inconclusive and their
-    reasons; else inconclusive when an equation is; else not explained when ``significant``; else
-    no gap. Returns the kind, its text and the reasons."""
+    (``in <target>`` when ``name_targets``), followed by the equations left inconclusive; the
+    reasons of the equations inconclusive or not explained; else inconclusive when an equation is; else not explained when ``significant`` or an
+    equation is not explained (a located gap); else no gap. Returns the kind, its text and the reasons."""
     explained = [g for g in gaps if g.verdict_kind is Verdict.EXPLAINED]
     undecided = [g for g in gaps if g.verdict_kind is Verdict.INCONCLUSIVE]
+    missed = significant or any(g.verdict_kind is Verdict.NOT_EXPLAINED for g in gaps)
     kind = (Verdict.EXPLAINED if explained else Verdict.INCONCLUSIVE if undecided
-            else Verdict.NOT_EXPLAINED if significant else Verdict.NO_GAP)
+            else Verdict.NOT_EXPLAINED if missed else Verdict.NO_GAP)
     reasons = free_run_reasons(free_run or {}, kind)
     if reasons:
         return Verdict.INCONCLUSIVE, Verdict.INCONCLUSIVE.text(), reasons
-    undecided_reasons = [f"{g.target}: {r}" for g in undecided for r in g.checks.get("reasons", [])]
+    undecided_reasons = [f"{g.target}: {r}" for g in gaps for r in g.checks.get("reasons", [])
+                         if g.verdict_kind in (Verdict.INCONCLUSIVE, Verdict.NOT_EXPLAINED)]
     if explained:
         parts = [f"{g.verdict} in {g.target}" if name_targets else g.verdict for g in explained]
         return kind, "; ".join(parts + [f"{g.target} inconclusive" for g in undecided]), undecided_reasons

@@ -42,6 +42,9 @@ class Where(TypedDict, total=False):
     time_windows: list
     regions: list
     split_explained: Optional[float]
+    residual_rms: Optional[float]  # of the starting structure fitted to every one-step row
+    target_rms: Optional[float]  # of the one-step rows' target
+    held_out_explained: Optional[float]  # share of the held-out rows' squared residual the best split removes
 
 
 class Estimator(TypedDict, total=False):

@@ -35,7 +35,7 @@ from msam_torch.diagnosis.effects.hypotheses import (
 )
 from msam_torch.diagnosis.options import DiagnoseOptions
 from msam_torch.diagnosis.report.gap_report import EquationGap
-from msam_torch.diagnosis.stages.localise import starting_where
+from msam_torch.diagnosis.stages.localise import located, starting_where
 from msam_torch.diagnosis.stages.rows import WeakForm
 from msam_torch.diagnosis.stages.structure import residual_checks, structure_left
 from msam_torch.engine.values import StepOptions
@@ -122,11 +122,12 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
                              options.check_level, options.max_residual_structure, options.absolute,
                              options.relative, estimation.reach,
                              noise * float(torch.linalg.vector_norm(weak.val_tests.kernels[order])))
+    where = starting_where(equation, weak.signals, None if weak.val_signals is weak.signals else weak.val_signals)
     kind, reasons = equation_verdict(is_significant, outcome, sure, structure, checks, options,
                                      _loose(equation, hypotheses, named, rmse, best if is_significant else 0, target_rms,
-                                            options))
+                                            options),
+                                     located(equation, where["summary"], options.relative, options.absolute))
     winner = best if is_significant else 0
-    where = starting_where(equation, weak.signals)
 
     text = lambda c: fitted_text(extended, equation, choices, original, c, weak.scale)
     gap = EquationGap(

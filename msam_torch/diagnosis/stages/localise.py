@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass, replace
 
 import torch
 
+from msam_torch.diagnosis.stages.structure import relevant
 from msam_torch.engine.candidates import EquationData
 from msam_torch.engine.step import lstsq, solve_normal
 from msam_torch.model.spec import Equation
@@ -111,21 +112,45 @@ def localise(design: torch.Tensor, y: torch.Tensor, values: dict[str, torch.Tens
 
 
 def where(t: torch.Tensor, design: torch.Tensor, y: torch.Tensor, values: dict[str, torch.Tensor],
-          orient: str = "separate") -> dict:
+          orient: str = "separate", held: tuple | None = None) -> dict:
     """:func:`localise` as the report's ``where`` (``summary``: flagged fraction, time windows,
-    regions) and the ``series`` its plots draw."""
+    regions, the single fit's residual and target RMS, and with ``held`` rows the share of their
+    squared residual the best rule's split removes, :func:`confirmed`) and the ``series`` its plots draw."""
     regions, flagged, residual, explained = localise(design, y, values, orient=orient)
+    single = y - design @ lstsq(design, y)
     summary = {"flagged_fraction": float(flagged.double().mean()), "split_explained": explained,
+               "residual_rms": float(single.square().mean().sqrt()), "target_rms": float(y.square().mean().sqrt()),
+               "held_out_explained": confirmed(design, y, values, regions[0], held) if held and regions else None,
                "time_windows": time_windows(t, flagged, residual), "regions": [asdict(r) for r in regions]}
     return {"summary": summary, "series": {"t": t, "residual": residual, "flagged": flagged, "values": values}}
 
 
-def starting_where(equation: Equation, signals: dict) -> dict:
+def confirmed(design: torch.Tensor, y: torch.Tensor, values: dict, region: Region, held: tuple) -> float:
+    """The share of the squared residual of ``held`` rows (design, target, values) that ``region``'s
+    two-regime fit removes, every fit made on the rows ``design``, ``y`` (an offset and a sign term
+    per regime, as in :func:`localise`): the split chosen in-sample, judged out of sample."""
+    held_design, held_y, held_values = held
+    total = (held_y - held_design @ lstsq(design, y)).square().sum().clamp_min(torch.finfo(y.dtype).tiny)
+    augment = lambda d, v: torch.cat([d, torch.ones_like(d[:, :1]), torch.sign(v[region.signal]).unsqueeze(-1)], -1)
+    train, test = augment(design, values), augment(held_design, held_values)
+    inside, held_inside = region.mask(values[region.signal]), region.mask(held_values[region.signal])
+    fit = lambda rows: lstsq(train[rows], y[rows]) if bool(rows.any()) else train.new_zeros(train.shape[-1])
+    predicted = torch.where(held_inside, test @ fit(inside), test @ fit(~inside))
+    return float(1 - (held_y - predicted).square().sum() / total)
+
+
+def starting_where(equation: Equation, signals: dict, held_out: dict | None = None) -> dict:
     """:func:`where` the starting structure fails, on the one-step (pointwise) rows of the training
-    record; pointwise, because a weak-form row mixes the states over its test function's window."""
-    data = EquationData.build(equation, signals, "none")
-    design = torch.cat([data.components[0], data.fixed_components[0]], -1)
-    return where(signals["t"], design, data.y[0], signal_values(equation, signals))
+    record (its split judged on ``held_out``'s rows, where given); pointwise, because a weak-form
+    row mixes the states over its test function's window."""
+    rows = lambda s: EquationData.build(equation, s, "none")
+    design = lambda d: torch.cat([d.components[0], d.fixed_components[0]], -1)
+    data = rows(signals)
+    held = None
+    if held_out is not None and equation.target in held_out:
+        other = rows(held_out)
+        held = (design(other), other.y[0], signal_values(equation, held_out))
+    return where(signals["t"], design(data), data.y[0], signal_values(equation, signals), held=held)
 
 
 def signal_values(equation: Equation, signals: dict) -> dict:
@@ -155,3 +180,29 @@ def time_windows(t: torch.Tensor, flagged: torch.Tensor, residual: torch.Tensor,
 def _rule(name: str, kind: str, a: float) -> str:
     shown = f"|{name}|" if kind.startswith("abs") else name
     return f"{shown} {'>' if kind.endswith('gt') else '<'} {a:.4g}"
+
+
+def located(equation: Equation, summary: dict, relative: float, absolute: float) -> str | None:
+    """The gap :func:`where` finds on one-step rows, as a reason, or None: rows are flagged (a split
+    removes at least :data:`MIN_EXPLAINED` of the squared residual), and so does the same split on
+    the held-out rows where there are any, by a share relevant by the null rule's margins
+    (:func:`~msam_torch.diagnosis.stages.structure.relevant`). The fixed
+    components that read the region's signal are named: an effect on them is not a hypothesis while
+    they are fixed."""
+    shares = [summary["split_explained"], summary.get("held_out_explained")]
+    if not summary["flagged_fraction"] or any(share is not None and (
+            share < MIN_EXPLAINED or not relevant(share, summary["residual_rms"], summary["target_rms"], relative,
+                                                  absolute)) for share in shares):
+        return None
+    region = summary["regions"][0]
+    held = summary.get("held_out_explained")
+    text = (f"the starting model fails where {region['rule']} (a separate fit there removes "
+            f"{100 * summary['split_explained']:.0f} % of the squared residual"
+            f"{'' if held is None else f', {100 * held:.0f} % on held-out rows'}) and no hypothesis closes the gap")
+    fixed = [equation.components[i].term.text for i in equation.fixed
+             if region["signal"] in equation.components[i].term.names]
+    if fixed:
+        text += (f"; {region['signal']} enters through the fixed component{'s' if len(fixed) > 1 else ''} "
+                 f"{', '.join(fixed)}, whose effects (saturation, a dead zone) are not tested while fixed: set "
+                 f"adjustable: true on {'them' if len(fixed) > 1 else 'it'}")
+    return text
