@@ -66,11 +66,14 @@ def equation_verdict(significant: bool, effect: str, confidence: dict, structure
     held-out rows better by the null rule's margin (``loose``: what it is and what it beats): the
     data show the gap's law but do not fix it. No significant effect where the starting model
     fails in a region of the record (``located``: where, how much, the fixed components that read
-    it) is a gap no hypothesis expresses: not explained, never "no significant gap"."""
+    it) is a gap no hypothesis expresses: not explained, never "no significant gap"; unless the
+    re-fitted start's held-out weak-form residual is within the null rule's absolute margin
+    (``checks["negligible"]``): the one-step rows then split the error of the derivative estimates."""
     if loose is not None:
         return Verdict.INCONCLUSIVE, [f"{loose}: these data do not fix the law of the gap", TRY["loose"]]
     if not significant:
-        return (Verdict.NOT_EXPLAINED, [located]) if located is not None else no_gap_verdict(checks)
+        missed = located is not None and not checks.get("negligible")
+        return (Verdict.NOT_EXPLAINED, [located]) if missed else no_gap_verdict(checks)
     named = effect != NOT_CATALOGUED
     rival = confidence.get("rival")
     if confidence["apart_p"] > options.apart_level and (named or rival not in (None, NOT_CATALOGUED)):
