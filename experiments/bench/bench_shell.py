@@ -115,7 +115,7 @@ def main() -> int:
         seconds, verdict = in_process(pendulum, args.repeats)
     torch_median = statistics.median(times['python -c "import torch"'])
     print(f"median wall time of {args.repeats} runs each, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}")
-    print(f"| command | median s | min s | vs import torch |\n|---|---|---|---|")
+    print("| command | median s | min s | vs import torch |\n|---|---|---|---|")
     for name, values in times.items():
         print(f"| {name} | {statistics.median(values):.2f} | {min(values):.2f} | "
               f"{statistics.median(values) / torch_median:.2f}x |")

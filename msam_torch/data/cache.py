@@ -1,9 +1,11 @@
-"""A folder of computed tensors (simulated systems) keyed by a fingerprint of the code and values that made them.
+"""A folder of computed tensors (simulated systems) keyed by a fingerprint of the code and values
+that made them.
 
 The folder is ``MSAM_CACHE_DIR`` when set (empty: no cache), else the user's cache folder
 (:func:`platformdirs.user_cache_dir`). A key fingerprints functions by their bytecode, constants,
-closed-over values and the global functions and constants they read (recursively), so an edited system or excitation misses the cache instead
-of reading a stale result; the torch version is part of every key. Files are written whole
+closed-over values and the global functions and constants they read (recursively), so an edited
+system or excitation misses the cache instead of reading a stale result; the torch version is part
+of every key. Files are written whole
 (a temporary file renamed into place); a folder that cannot be written or a file that cannot be
 read costs only the computation.
 """
@@ -91,7 +93,7 @@ def _feed(digest, value: Any, seen: set) -> None:
         _feed(digest, (value.co_consts, value.co_names), seen)
     elif dataclasses.is_dataclass(value) and not isinstance(value, type):
         _feed(digest, (type(value).__qualname__, *(getattr(value, f.name) for f in dataclasses.fields(value))), seen)
-    elif isinstance(value, dict) or hasattr(value, "items"):
+    elif hasattr(value, "items"):  # a mapping
         _feed(digest, tuple(sorted(((str(k), v) for k, v in value.items()), key=lambda kv: kv[0])), seen)
     elif isinstance(value, (tuple, list)):
         digest.update(f"{type(value).__name__}{len(value)}(".encode())

@@ -111,9 +111,9 @@ def fastest_decay(spec: ModelSpec, models: Sequence[EquationModel], points: Mapp
     real part of the Jacobian ``d(dx/dt)/dx`` of the whole model at each of the K ``points`` (``t``,
     every simulated state and input, each (K,)), the median over the points (0 without any). The
     rows of the Jacobian by reverse mode, one per state (every point's rate depends on its own state
-    alone): torch's forward mode imports its compiler on first use, a second of start-up. An explicit fixed-step solver is stable on a mode only
-    while the step times its magnitude lies within the method's interval (:data:`~.solver.STABILITY`);
-    a growing mode (positive real part) diverges at any step. The median, not the greatest: a
+    alone): torch's forward mode imports its compiler on first use, a second of start-up. An explicit
+    fixed-step solver is stable on a mode only while the step times its magnitude lies within the
+    method's interval (:data:`~.solver.STABILITY`); a growing mode (positive real part) diverges at any step. The median, not the greatest: a
     bounded law with an unbounded slope (Coulomb friction's ``w|w|^-0.9`` near ``w = 0``) makes a
     fixed step chatter where the slope is steep, not diverge."""
     model, p, b = _system(spec, models)

@@ -5,24 +5,20 @@ import pandas as pd
 import pytest
 from scipy.integrate import solve_ivp
 
+from msam_torch.data.systems import WITHHELD
 from msam_torch.diagnosis import Verdict, diagnose
 
-MODEL = {
-    "states": ["x", "x_dot"], "inputs": ["u"], "parameters": {"m": 1.0, "c": 0.6, "k": 4.0},
-    "quantities": {"x": "position", "x_dot": "velocity", "u": "force"},
-    "equations": [{"target": "x_ddot", "components": [{"term": "x_dot", "theta": "-c/m"}, {"term": "x", "theta": "-k/m"},
-                                                      {"term": "u", "theta": "1/m", "adjustable": False}],
-                   "adjustments": ["abs(x_dot)", "abs(x)"]}],
-}
+MODEL = WITHHELD["msd_linear"].model  # m x_ddot = -c x_dot - k x + u, the force's component fixed
 
 
 def record(seed: int, limit: float, samples: int = 3000, noise: float = 0.01) -> pd.DataFrame:
     """The position (noise ``noise`` of its std) under a multisine force clipped at ``limit``."""
     rng = np.random.default_rng(seed)
     t = np.linspace(0.0, 40.0, samples)
-    freqs, phases = np.array([0.15, 0.3, 0.5, 0.7, 0.95, 1.2]) * (1 + 0.1 * rng.standard_normal(6)), rng.uniform(0, 6.3, 6)
+    freqs = np.array([0.15, 0.3, 0.5, 0.7, 0.95, 1.2]) * (1 + 0.1 * rng.standard_normal(6))
+    phases = rng.uniform(0, 6.3, 6)
     u = lambda tt: 7.0 * np.sin(np.multiply.outer(tt, 2 * np.pi * freqs) + phases).sum(-1) / np.sqrt(3)
-    rhs = lambda tt, s: [s[1], -0.6 * s[1] - 4.0 * s[0] + np.clip(u(tt), -limit, limit)]
+    rhs = lambda tt, s: [s[1], -0.5 * s[1] - 4.0 * s[0] + np.clip(u(tt), -limit, limit)]
     x = solve_ivp(rhs, (0.0, 40.0), [0.0, 0.0], t_eval=t, rtol=1e-9, atol=1e-9).y[0]
     return pd.DataFrame({"t": t, "x": x + noise * x.std() * rng.standard_normal(samples), "u": u(t)})
 

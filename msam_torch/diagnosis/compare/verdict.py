@@ -151,9 +151,10 @@ def overall(gaps: Sequence, significant: bool, name_targets: bool,
             free_run: dict | None = None) -> tuple[Verdict, str, list[str]]:
     """The report's verdict from its equations' (:class:`~msam_torch.diagnosis.report.gap_report.EquationGap`) and the free runs:
     inconclusive when :func:`free_run_reasons` finds any; else every explained equation's
-    (``in <target>`` when ``name_targets``), followed by the equations left inconclusive; the
-    reasons of the equations inconclusive or not explained; else inconclusive when an equation is; else not explained when ``significant`` or an
-    equation is not explained (a located gap); else no gap. Returns the kind, its text and the reasons."""
+    (``in <target>`` when ``name_targets``), followed by the equations left inconclusive; else
+    inconclusive when an equation is; else not explained when ``significant`` or an equation is
+    not explained (a located gap); else no gap. Returns the kind, its text and the reasons (those of
+    the equations inconclusive or not explained)."""
     explained = [g for g in gaps if g.verdict_kind is Verdict.EXPLAINED]
     undecided = [g for g in gaps if g.verdict_kind is Verdict.INCONCLUSIVE]
     missed = significant or any(g.verdict_kind is Verdict.NOT_EXPLAINED for g in gaps)
@@ -162,12 +163,12 @@ def overall(gaps: Sequence, significant: bool, name_targets: bool,
     reasons = free_run_reasons(free_run or {}, kind)
     if reasons:
         return Verdict.INCONCLUSIVE, Verdict.INCONCLUSIVE.text(), reasons
-    undecided_reasons = [f"{g.target}: {r}" for g in gaps for r in g.checks.get("reasons", [])
-                         if g.verdict_kind in (Verdict.INCONCLUSIVE, Verdict.NOT_EXPLAINED)]
+    open_reasons = [f"{g.target}: {r}" for g in gaps for r in g.checks.get("reasons", [])
+                    if g.verdict_kind in (Verdict.INCONCLUSIVE, Verdict.NOT_EXPLAINED)]
     if explained:
         parts = [f"{g.verdict} in {g.target}" if name_targets else g.verdict for g in explained]
-        return kind, "; ".join(parts + [f"{g.target} inconclusive" for g in undecided]), undecided_reasons
-    return kind, kind.text(), undecided_reasons
+        return kind, "; ".join(parts + [f"{g.target} inconclusive" for g in undecided]), open_reasons
+    return kind, kind.text(), open_reasons
 
 
 def demoted(gaps: Sequence, kind: Verdict, reasons: list[str]) -> tuple:

@@ -85,7 +85,7 @@ def localise(design: torch.Tensor, y: torch.Tensor, values: dict[str, torch.Tens
     explained = torch.empty(len(rules), dtype=y.dtype, device=y.device)
     for signal in dict.fromkeys(r.signal for r in rules):  # the rules of one signal share their design
         of = torch.tensor([r.signal == signal for r in rules], device=y.device)
-        augmented = torch.cat([design, torch.ones_like(y).unsqueeze(-1), torch.sign(values[signal]).unsqueeze(-1)], -1)
+        augmented = _augmented(design, values, signal)
         explained[of] = 1 - (_sse(augmented, y, inside[of]) + _sse(augmented, y, 1 - inside[of])) / total
     rows_in = inside.sum(-1)
     if orient == "global":
@@ -117,22 +117,25 @@ def where(t: torch.Tensor, design: torch.Tensor, y: torch.Tensor, values: dict[s
     regions, the single fit's residual and target RMS, and with ``held`` rows the share of their
     squared residual the best rule's split removes, :func:`confirmed`) and the ``series`` its plots draw."""
     regions, flagged, residual, explained = localise(design, y, values, orient=orient)
-    single = y - design @ lstsq(design, y)
+    single = lstsq(design, y)
+    held_out = confirmed(design, y, values, single, regions[0], held) if held and regions else None
     summary = {"flagged_fraction": float(flagged.double().mean()), "split_explained": explained,
-               "residual_rms": float(single.square().mean().sqrt()), "target_rms": float(y.square().mean().sqrt()),
-               "held_out_explained": confirmed(design, y, values, regions[0], held) if held and regions else None,
+               "residual_rms": float((y - design @ single).square().mean().sqrt()),
+               "target_rms": float(y.square().mean().sqrt()),
+               "held_out_explained": held_out,
                "time_windows": time_windows(t, flagged, residual), "regions": [asdict(r) for r in regions]}
     return {"summary": summary, "series": {"t": t, "residual": residual, "flagged": flagged, "values": values}}
 
 
-def confirmed(design: torch.Tensor, y: torch.Tensor, values: dict, region: Region, held: tuple) -> float:
-    """The share of the squared residual of ``held`` rows (design, target, values) that ``region``'s
-    two-regime fit removes, every fit made on the rows ``design``, ``y`` (an offset and a sign term
-    per regime, as in :func:`localise`): the split chosen in-sample, judged out of sample."""
+def confirmed(design: torch.Tensor, y: torch.Tensor, values: dict, single: torch.Tensor, region: Region,
+              held: tuple) -> float:
+    """The share of the squared residual of ``held`` rows (design, target, values) left by the
+    ``single`` fit that ``region``'s two-regime fit removes, every fit made on the rows ``design``,
+    ``y`` (an offset and a sign term per regime, as in :func:`localise`): the split chosen in-sample,
+    judged out of sample."""
     held_design, held_y, held_values = held
-    total = (held_y - held_design @ lstsq(design, y)).square().sum().clamp_min(torch.finfo(y.dtype).tiny)
-    augment = lambda d, v: torch.cat([d, torch.ones_like(d[:, :1]), torch.sign(v[region.signal]).unsqueeze(-1)], -1)
-    train, test = augment(design, values), augment(held_design, held_values)
+    total = (held_y - held_design @ single).square().sum().clamp_min(torch.finfo(y.dtype).tiny)
+    train, test = _augmented(design, values, region.signal), _augmented(held_design, held_values, region.signal)
     inside, held_inside = region.mask(values[region.signal]), region.mask(held_values[region.signal])
     fit = lambda rows: lstsq(train[rows], y[rows]) if bool(rows.any()) else train.new_zeros(train.shape[-1])
     predicted = torch.where(held_inside, test @ fit(inside), test @ fit(~inside))
@@ -175,6 +178,11 @@ def time_windows(t: torch.Tensor, flagged: torch.Tensor, residual: torch.Tensor,
     found = [{"start": float(t[a]), "stop": float(t[b]), "energy_share": float((residual[a:b + 1] ** 2).sum() / energy)}
              for a, b in windows]
     return sorted(found, key=lambda w: -w["energy_share"])
+
+
+def _augmented(design: torch.Tensor, values: dict, signal: str) -> torch.Tensor:
+    """``design`` with an offset and a ``sign(signal)`` column: one regime of a split."""
+    return torch.cat([design, torch.ones_like(design[..., :1]), torch.sign(values[signal]).unsqueeze(-1)], -1)
 
 
 def _rule(name: str, kind: str, a: float) -> str:
