@@ -65,7 +65,8 @@ class _Section(BaseModel):
 class ComponentConfig(_Section):
     """One component ``theta * M`` of a state equation (Eq. 2)."""
 
-    term: str = Field(description="M_i: a product of states, inputs and derivatives, e.g. 'x_dot'")
+    term: str = Field(description="M_i: an expression of states, inputs and derivatives, e.g. 'x_dot'; a parameter "
+                      "in it reads its nominal value (not re-fitted), e.g. 'T - Ta'")
     theta: Union[str, Number] = Field(description="nominal theta_i, a number or an expression of parameters")
     adjustable: bool = Field(True, description="whether MSAM may adjust this component (Eq. 8)")
     start: Optional[Number] = Field(None, description="starting exponent (default 0)")
@@ -144,7 +145,7 @@ class ModelConfig(_Section):
     parameters: dict[str, Number] = Field({}, description="named nominal parameters the thetas are expressions of")
     equations: list[EquationConfig] = Field(min_length=1, description="one per modelled derivative")
     quantities: dict[str, Annotated[SignalQuantity, BeforeValidator(_plain_quantity)]] = Field(
-        {}, description="signal -> quantity (position, velocity, angle, angular_velocity, current, voltage, level, "
+        {}, description="signal (or parameter) -> quantity (position, velocity, angle, angular_velocity, current, voltage, level, "
                         "flow, temperature, concentration, population, ...) or {quantity, unit}; the catalogue's "
                         "roles come from these (a derivative of a declared position or angle is known)")
     effects: list[EffectConfig] = Field([], description="effects added to the bundled catalogue, in its format")

@@ -25,6 +25,7 @@ def to_spec(config: ModelConfig) -> ModelSpec:
     parameters = set(config.parameters)
     if parameters & signals:
         raise ConfigError("model.parameters", f"names shared with signals: {sorted(parameters & signals)}")
+    nominal = dict(config.parameters)  # a parameter in a term or an adjustment reads its nominal value
     equations = []
     targets = set()
     for e, eq in enumerate(config.equations):
@@ -37,7 +38,7 @@ def to_spec(config: ModelConfig) -> ModelSpec:
             raise ConfigError(f"{key}.target", f"{eq.target!r} has two equations")
         targets.add(eq.target)
         adjustments = tuple(
-            parse(f, f"{key}.adjustments[{i}]", signals - {eq.target}) for i, f in enumerate(eq.adjustments)
+            parse(f, f"{key}.adjustments[{i}]", signals - {eq.target}, nominal) for i, f in enumerate(eq.adjustments)
         )
         if len({f.text for f in adjustments}) != len(adjustments):
             raise ConfigError(f"{key}.adjustments", "an adjustment function is listed twice")
@@ -49,7 +50,7 @@ def to_spec(config: ModelConfig) -> ModelSpec:
             indices = []
             for j, f in enumerate(c.adjustments):
                 where = f"{key}.components[{i}].adjustments[{j}]"
-                text = parse(f, where, signals - {eq.target}).text
+                text = parse(f, where, signals - {eq.target}, nominal).text
                 if text not in texts:
                     raise ConfigError(where, f"{f!r} is not one of the equation's adjustments {texts}")
                 indices.append(texts.index(text))
@@ -59,7 +60,7 @@ def to_spec(config: ModelConfig) -> ModelSpec:
 
         components = tuple(
             Component(
-                term=parse(c.term, f"{key}.components[{i}].term", signals - {eq.target}),
+                term=parse(c.term, f"{key}.components[{i}].term", signals - {eq.target}, nominal),
                 theta=parse(c.theta, f"{key}.components[{i}].theta", parameters),
                 adjustable=c.adjustable,
                 start=float(c.start or 0.0),
@@ -73,8 +74,9 @@ def to_spec(config: ModelConfig) -> ModelSpec:
                               "reads 'no significant gap' where it holds)")
         equations.append(Equation(eq.target, components, adjustments))
     for name in config.quantities:
-        if name not in signals - {"t"}:
-            raise ConfigError(f"model.quantities.{name}", f"{name!r} is not a state, an input or a derivative of one")
+        if name not in (signals - {"t"}) | parameters:
+            raise ConfigError(f"model.quantities.{name}", f"{name!r} is not a state, an input, a derivative of one "
+                              "or a parameter")
     quantities = {name: q.quantity for name, q in config.quantities.items()}
     units = {name: q.unit for name, q in config.quantities.items() if q.unit}
     return ModelSpec(tuple(config.states), tuple(config.inputs), dict(config.parameters), tuple(equations),

@@ -41,17 +41,20 @@ MAX_DEPTH = 100
 
 @dataclass(frozen=True)
 class Expression:
-    """A parsed expression: its source text, the names it reads, and its syntax tree."""
+    """A parsed expression: its source text, the signals it reads (``names``), its syntax tree and
+    the constants it reads by name (``constants``: a model parameter in a term, at its value)."""
 
     text: str
     names: frozenset[str]
     tree: ast.AST
     key: str = ""
+    constants: tuple[tuple[str, float], ...] = ()
 
     def __call__(self, values: Mapping[str, torch.Tensor | float]):
         """Evaluate with ``values`` bound to the names (tensors or floats). Division by zero,
         overflow and a complex value raise :class:`ConfigError` naming the key; so does a
         non-finite number (tensors over data are checked where the data are, see data.py)."""
+        values = {**dict(self.constants), **values} if self.constants else values
         try:
             value = _evaluate(self.tree, values)
         except ArithmeticError as exc:
@@ -81,8 +84,9 @@ class Expression:
         return self.text
 
 
-def parse(text, key: str, allowed: frozenset[str] | set[str]) -> Expression:
-    """Parse ``text`` admitting only names in ``allowed``; errors name the config ``key``."""
+def parse(text, key: str, allowed: frozenset[str] | set[str], constants: Mapping[str, float] | None = None) -> Expression:
+    """Parse ``text`` admitting only names in ``allowed`` and ``constants`` (named numbers, bound at
+    evaluation and not among the names it reads); errors name the config ``key``."""
     if isinstance(text, bool) or not isinstance(text, (str, int, float)):
         raise ConfigError(key, f"expected an expression or a number, got {type(text).__name__}")
     text = str(text).strip()
@@ -99,8 +103,10 @@ def parse(text, key: str, allowed: frozenset[str] | set[str]) -> Expression:
     except (RecursionError, MemoryError):
         raise ConfigError(key, f"expression {text!r} is nested too deeply") from None
     names: set[str] = set()
-    _check(tree, key, text, frozenset(allowed), names)
-    return Expression(text, frozenset(names), tree, key)
+    constants = dict(constants or {})
+    _check(tree, key, text, frozenset(allowed) | frozenset(constants), names)
+    read = tuple(sorted((n, float(constants[n])) for n in names if n in constants))
+    return Expression(text, frozenset(n for n in names if n not in constants), tree, key, read)
 
 
 def _check(node, key, text, allowed, names, depth=0):

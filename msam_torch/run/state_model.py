@@ -287,11 +287,13 @@ def _sympy(expression: Expression):
     binary = {ast.Add: lambda a, b: a + b, ast.Sub: lambda a, b: a - b, ast.Mult: lambda a, b: a * b,
               ast.Div: lambda a, b: a / b, ast.Pow: lambda a, b: a**b}
 
+    constants = dict(expression.constants)
+
     def walk(node):
         if isinstance(node, ast.Constant):
             return sympy.Integer(node.value) if isinstance(node.value, int) else sympy.Float(node.value)
         if isinstance(node, ast.Name):
-            return sympy.Symbol(node.id)
+            return sympy.Float(constants[node.id], 17) if node.id in constants else sympy.Symbol(node.id)
         if isinstance(node, ast.BinOp):
             return binary[type(node.op)](walk(node.left), walk(node.right))
         if isinstance(node, ast.UnaryOp):
