@@ -79,6 +79,11 @@ def _run(args) -> int:
         for record, rows in group["free_run_rmse"].items():
             print(f"free-run RMSE of {', '.join(group['outputs'])} on the {record} record: "
                   + " -> ".join(f"{', '.join(f'{v:.4g}' for v in rows[label])} ({label})" for label in rows))
+    if not (args.no_diagnosis or stop.interrupted):
+        from msam_torch.diagnosis.agreement import stated
+
+        for line in stated(config, result, Path(args.config).parent):
+            print(line)
     print(f"wrote {path}")
     if stop.interrupted:
         raise Interrupted(f"interrupted (Ctrl-C): the best state found so far is in {path}")
@@ -278,6 +283,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("overrides", nargs="*", help="config overrides such as adaptation.step_size=one")
     run.add_argument("--out", help="output folder (default: a new runs/<config name>/version_N)")
     run.add_argument("--no-tensorboard", action="store_true", help="do not write TensorBoard event files")
+    run.add_argument("--no-diagnosis", action="store_true", help="on measured data, do not diagnose the same "
+                     "record to state whether the diagnosis reads the same law")
     run.add_argument("--max-seconds", type=_seconds, help="stop the adaptation after this many seconds, keeping "
                                                             "the best state found (result.json records it)")
     run.set_defaults(handler=_run, out_default="{stem}")
