@@ -5,7 +5,7 @@ hypothesis fitted at once (:mod:`msam_torch.diagnosis.effects.hypotheses`) -> he
 -> where the starting model fails (:mod:`.localise`)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
@@ -35,11 +35,12 @@ from msam_torch.diagnosis.effects.hypotheses import (
 )
 from msam_torch.diagnosis.options import DiagnoseOptions
 from msam_torch.diagnosis.report.gap_report import EquationGap
-from msam_torch.diagnosis.stages.localise import located, starting_where
+from msam_torch.diagnosis.stages.localise import implicated, located, starting_where
 from msam_torch.diagnosis.stages.rows import WeakForm
 from msam_torch.diagnosis.stages.structure import residual_checks, structure_left
 from msam_torch.engine.values import StepOptions
 from msam_torch.engine.weak_form import target_source
+from msam_torch.model.expressions import parse
 from msam_torch.model.notation import format_component, format_equation
 from msam_torch.model.spec import Equation, ModelSpec
 from msam_torch.run.estimation import Estimation
@@ -128,6 +129,9 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
                                             options),
                                      located(equation, where["summary"], options.relative, options.absolute))
     winner = best if is_significant else 0
+    if kind is Verdict.NOT_EXPLAINED and not is_significant and implicated(equation, where["summary"]):
+        reasons = [*reasons, _freed_finding(spec, equation, where["summary"], train, estimation, parameters, options,
+                                            generator)]
 
     text = lambda c: fitted_text(extended, equation, choices, original, c, weak.scale)
     gap = EquationGap(
@@ -155,6 +159,36 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
     )
     model = models(extended, equation, nominal, choices, original, boot, winner, is_effect, weak.scale)
     return EquationDiagnosis(gap, model, {"where": where["series"]})
+
+
+def freed(equation: Equation, fixed: list[int], signal: str) -> Equation:
+    """``equation`` with its ``fixed`` components adjustable by ``abs(signal)`` (added to the
+    adjustment set where missing; the other components keep the functions they had)."""
+    texts = [f.text for f in equation.adjustments]
+    function = f"abs({signal})"
+    adjustments = equation.adjustments if function in texts else (
+        *equation.adjustments, parse(function, f"{equation.target}: {function}", {signal}))
+    index = [f.text for f in adjustments].index(function)
+    components = tuple(
+        replace(c, adjustable=True, allowed=(index,)) if i in fixed else
+        replace(c, allowed=equation.allowed(i)) if c.adjustable else c
+        for i, c in enumerate(equation.components))
+    return replace(equation, components=components, adjustments=adjustments)
+
+
+def _freed_finding(spec: ModelSpec, equation: Equation, summary: dict, train: Dataset, estimation: Estimation,
+                   parameters: dict, options: DiagnoseOptions, generator: torch.Generator) -> str:
+    """What the same diagnosis finds with the fixed components that read the located region's
+    signal made adjustable (:func:`freed`): its verdict, best hypothesis and held-out gain."""
+    fixed = implicated(equation, summary)
+    signal = summary["regions"][0]["signal"]
+    gap = diagnose_equation(spec, freed(equation, fixed, signal), train, estimation, parameters, options, generator).gap
+    names = ", ".join(equation.components[i].term.text for i in fixed)
+    if not gap.significant:
+        return f"tested with {names} adjustable by abs({signal}): still {gap.verdict}"
+    return (f"tested with {names} adjustable by abs({signal}): {gap.verdict}, best {gap.hypothesis} (exponent "
+            f"{gap.exponent:.3g}, {gap.effect}), held-out RMSE {100 * gap.improvement['relative']:.1f} % below the "
+            f"re-fitted start's: {gap.adapted_equation}")
 
 
 def _pinned_rivals(spec: ModelSpec, extended: Equation, equation: Equation, hypotheses: list[Hypothesis],

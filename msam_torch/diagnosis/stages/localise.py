@@ -196,7 +196,8 @@ def located(equation: Equation, summary: dict, relative: float, absolute: float)
     the held-out rows where there are any, by a share relevant by the null rule's margins
     (:func:`~msam_torch.diagnosis.stages.structure.relevant`). The fixed
     components that read the region's signal are named: an effect on them is not a hypothesis while
-    they are fixed."""
+    they are fixed (the diagnosis then tests them adjustable,
+    :func:`~msam_torch.diagnosis.stages.equation.freed`)."""
     shares = [summary["split_explained"], summary.get("held_out_explained")]
     if not summary["flagged_fraction"] or any(share is not None and (
             share < MIN_EXPLAINED or not relevant(share, summary["residual_rms"], summary["target_rms"], relative,
@@ -207,10 +208,17 @@ def located(equation: Equation, summary: dict, relative: float, absolute: float)
     text = (f"the starting model fails where {region['rule']} (a separate fit there removes "
             f"{100 * summary['split_explained']:.0f} % of the squared residual"
             f"{'' if held is None else f', {100 * held:.0f} % on held-out rows'}) and no hypothesis closes the gap")
-    fixed = [equation.components[i].term.text for i in equation.fixed
-             if region["signal"] in equation.components[i].term.names]
+    fixed = [equation.components[i].term.text for i in implicated(equation, summary)]
     if fixed:
         text += (f"; {region['signal']} enters through the fixed component{'s' if len(fixed) > 1 else ''} "
-                 f"{', '.join(fixed)}, whose effects (saturation, a dead zone) are not tested while fixed: set "
-                 f"adjustable: true on {'them' if len(fixed) > 1 else 'it'}")
+                 f"{', '.join(fixed)}, whose effects (saturation, a dead zone) no hypothesis tests while fixed")
     return text
+
+
+def implicated(equation: Equation, summary: dict) -> list[int]:
+    """The fixed components that read the signal of the best region :func:`where` found: an effect
+    on them (saturation, a dead zone) is no hypothesis while they are fixed."""
+    if not summary.get("regions"):
+        return []
+    signal = summary["regions"][0]["signal"]
+    return [i for i in equation.fixed if signal in equation.components[i].term.names]
