@@ -6,16 +6,20 @@ import math
 import re
 from dataclasses import replace
 from functools import lru_cache
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from msam_torch.cli.main import main
 from msam_torch.diagnosis import Verdict, diagnose
 from msam_torch.diagnosis.report.document import interval_text, margin, markdown
-from msam_torch.diagnosis.report.figures import DPI, Units, correlations, render
+from msam_torch.diagnosis.report.edges import Edges, edges
+from msam_torch.diagnosis.report.figures import DPI, correlations, draw, render
 from msam_torch.diagnosis.report.html import page
+from msam_torch.diagnosis.report.units import Units
 from tests.diagnosis.test_diagnose import FAST, case_data
 from tests.helpers import CONFIGS
 
@@ -80,6 +84,87 @@ def test_axis_labels_carry_the_declared_units():
     assert measured.time == "time (column t_s)"
     assert Units({"model": {"quantities": {"h": {"quantity": "level", "unit": None}}}}).label("h_dot") == (
         "h_dot (rate of level, unit not declared)")
+    timed = Units({"model": {"quantities": {"x": {"quantity": "position", "unit": "m"}}},
+                   "data": {"time": "t_s", "time_unit": "s"}})  # data.time_unit names the time column's unit
+    assert timed.time == "time [s]" and timed.label("x_ddot") == "x_ddot [m per s²]" and timed.times == "s"
+    assert timed.frequency() == "frequency (cycles per s)" and units.frequency() == "frequency (cycles per time unit)"
+
+
+def test_the_record_edges_are_shaded_and_left_out_of_the_residual_axis():
+    """Spikes of the derivative estimate at both ends of the record (half the savgol window: 7
+    samples) are shaded and clipped; nothing flagged: no 'flagged' legend entry."""
+    import matplotlib.pyplot as plt
+
+    t = torch.linspace(0.0, 10.0, 251, dtype=torch.float64)
+    r = torch.sin(t)
+    r[:4], r[-4:] = 50.0, -50.0
+    where = {"t": t, "residual": r, "flagged": torch.zeros(251, dtype=torch.bool), "values": {"x": torch.cos(t)}}
+    estimator = {"derivatives": {"x": {"method": "savgol", "window": 15}}, "refinement": 1}
+    report = SimpleNamespace(series={"x_ddot": {"where": where}},
+                             equations=[SimpleNamespace(target="x_ddot", estimator=estimator)])
+    (_, _, over_time), (_, _, against) = draw(report, Units({"data": {"time_unit": "s"}}))
+    for fig in (over_time, against):
+        low, high = fig.axes[0].get_ylim()
+        assert -1.2 < low < -0.99 and 0.99 < high < 1.2  # the sine, not the spikes
+        labels = [text.get_text().replace("\n", " ") for text in fig.legends[0].get_texts()]
+        assert not any("flagged" in label for label in labels) and clashes(fig) == []
+        plt.close(fig)
+    assert "record edges: derivative estimate unreliable (half the savgol window, 7 samples = 0.28 s; clipped)" in [
+        text.get_text().replace("\n", " ") for text in over_time.legends[0].get_texts()]
+    assert edges({"derivatives": {"x": {"method": "butterworth", "cutoff": 2.0}}}, "x_ddot", t.numpy()) == Edges(
+        0.5, "a period at the butterworth cut-off, 0.5 time units")
+    assert edges({"derivatives": "given"}, "x_ddot", t.numpy()) is None
+
+
+def shown_ticks(ax) -> list:
+    """The tick labels an axes draws: visible, with text, at a tick inside its view limits."""
+    labels = []
+    for axis, limits in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
+        low, high = sorted(limits)
+        slack = 1e-9 * (high - low)
+        labels += [label for tick in axis.get_major_ticks() + axis.get_minor_ticks()
+                   if low - slack <= tick.get_loc() <= high + slack
+                   for label in (tick.label1, tick.label2) if label.get_visible() and label.get_text().strip()]
+    return labels
+
+
+def clashes(fig) -> list[str]:
+    """What breaks the layout of a drawn figure: a text (title, label, tick label, legend) reaching
+    outside the canvas; a title, axis label or tick label overlapping another axes' or the figure's
+    title; a legend over an axes' data area."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    box = lambda artist: artist.get_window_extent(renderer)
+    owned = [(None, t) for t in [fig._suptitle, *fig.texts] if t is not None and t.get_text().strip()]
+    owned += [(ax, t) for ax in fig.axes for t in (ax.title, ax.xaxis.label, ax.yaxis.label) if t.get_text().strip()]
+    owned += [(ax, t) for ax in fig.axes for t in shown_ticks(ax)]
+    legends = fig.legends + [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
+    canvas = fig.bbox.padded(1)  # a pixel of rounding
+    named = [(repr(t.get_text()), t) for _, t in owned] + [("a legend", legend) for legend in legends]
+    found = [f"{name} outside the canvas" for name, artist in named
+             if not (canvas.contains(*box(artist).min) and canvas.contains(*box(artist).max))]
+    for k, (ax, a) in enumerate(owned):
+        found += [f"{a.get_text()!r} overlaps {b.get_text()!r}" for other, b in owned[k + 1:]
+                  if other is not ax and box(a).overlaps(box(b))]
+    found += [f"a legend over the data of {ax.get_title() or ax.get_ylabel()!r}" for legend in legends
+              for ax in fig.axes if box(legend).overlaps(box(ax).shrunk(1, 1))]
+    return found
+
+
+@pytest.mark.parametrize("quantities", [None, {s: {"quantity": q} for s, q in (("x", "position"), ("x_dot", "velocity"),
+                                                                              ("u", "force"))}])
+def test_every_figure_renders_without_clipped_or_overlapping_text(quantities):
+    """At the default size, with short (declared units) and long (quantities without units) labels."""
+    import matplotlib.pyplot as plt
+
+    report = drag_report()
+    drawn = draw(report, Units(report.config if quantities is None else {"model": {"quantities": quantities}}))
+    assert {f"{name}.png" for name, _, _ in drawn} == FIGURES
+    found = {}
+    for name, _, fig in drawn:
+        found[name] = clashes(fig)
+        plt.close(fig)
+    assert found == {name: [] for name, _, _ in drawn}
 
 
 def test_correlation_band_and_values_match_a_direct_computation():

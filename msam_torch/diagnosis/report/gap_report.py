@@ -17,9 +17,10 @@ import torch
 
 from msam_torch.diagnosis.compare.verdict import Verdict
 from msam_torch.diagnosis.report.document import exponent_text, margin, markdown
-from msam_torch.diagnosis.report.figures import Units, render
+from msam_torch.diagnosis.report.figures import render
 from msam_torch.diagnosis.report.html import page
 from msam_torch.diagnosis.report.records import Checks, Confidence, Estimator, Improvement, InTurn, Naming, Where
+from msam_torch.diagnosis.report.units import Units
 from msam_torch.run.outputs import check_folder, one_set, write_atomic
 from msam_torch.run.result import _finite
 from msam_torch.run.state_model import StateModel
