@@ -15,10 +15,11 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from msam_torch.cli.main import main
 from msam_torch.diagnosis import Verdict, diagnose
-from msam_torch.diagnosis.report.document import interval_text, margin, markdown
+from msam_torch.diagnosis.report.document import HYPOTHESES, interval_text, margin, markdown
 from msam_torch.diagnosis.report.edges import Edges, edges
 from msam_torch.diagnosis.report.figures import DPI, correlations, draw, render
 from msam_torch.diagnosis.report.html import page
+from msam_torch.diagnosis.report.summary import paragraph
 from msam_torch.diagnosis.report.units import Units
 from tests.diagnosis.test_diagnose import FAST, case_data
 from tests.helpers import CONFIGS
@@ -211,6 +212,44 @@ def test_tables_have_no_duplicated_rows_and_no_zero_length_windows():
     assert "2 isolated flagged samples (no window; 0.4 % of the residual energy) are not listed." in text
     hypotheses = [r for r in tables(text) if r and r[0].startswith(f"| `{gap.ranking[0]['hypothesis']}`")]
     assert hypotheses and len(hypotheses[0]) == len({r for r in hypotheses[0]})
+
+
+def test_hypotheses_of_one_form_are_told_apart_by_their_start():
+    """The three starts of an additive form (ADDITIVE_STARTS) printed the same hypothesis text
+    three times; each row now says its kind and the start its fit began at."""
+    report = drag_report()
+    gap = report.equations[0]
+    assert sorted({r["start"] for r in gap.ranking if r["kind"] == "additive"}) == [-0.5, 0.5, 1.5]
+    assert all(r["start"] is None for r in gap.ranking if r["kind"] != "additive")
+    text = markdown(replace(report, equations=(replace(gap, ranking=gap.ranking[:HYPOTHESES]),)), [])
+    rows = next(rows for rows in tables(text) if rows and rows[0].startswith(f"| `{gap.ranking[0]['hypothesis']}`"))
+    told = [tuple(row.split(" | ")[:2]) for row in rows]  # hypothesis and kind
+    assert len(rows) == len(set(told)) == min(len(gap.ranking), HYPOTHESES)
+    best = gap.ranking[0]
+    assert rows[0].startswith(f"| `{best['hypothesis']}` | additive, from gamma = {best['start']:g} | quadratic drag |")
+
+
+def test_the_summary_reads_in_plain_language_before_the_numbers():
+    """What is missing, where, how much better on held-out data, how sure; gamma and the total
+    exponent each said once, with what each is."""
+    report = drag_report()
+    gap = report.equations[0]
+    naming, c = gap.naming, gap.confidence
+    printed = str(report)
+    lines = printed.splitlines()
+    assert lines[1] == "summary:" and lines[2].startswith("  x_ddot: the starting model misses quadratic drag (")
+    assert lines[3] == "numbers:" and lines[4] == "x_ddot: gap explained by quadratic drag"
+    assert (f"with gamma = {gap.exponent:.3f}: the added term varies as |x_dot|^{naming['total_exponent']:.2f} ± "
+            f"{naming['half_width']:.2f} (gamma plus the power of x_dot in the term it multiplies: the total "
+            f"exponent the catalogue compares; quadratic drag: {gap.catalogue_exponent})") in lines[2]
+    assert (f"On held-out data the adapted model's error (RMSE of x_ddot) is {100 * gap.improvement['relative']:.0f} % "
+            "lower than that of the starting model with its parameters re-fitted.") in lines[2]
+    assert f"How sure: it is the best fit in {100 * c['win_frequency']:.0f} % of {c['bootstrap_trials']} " in lines[2]
+    assert f"gamma {gap.exponent:.3f}; quadratic drag (mechanical): total exponent" in printed  # the numbers, labelled
+    text = markdown(report, [])
+    assert text.index("## Summary") < text.index(lines[2].strip()) < text.index("## x_ddot")
+    quiet = replace(gap, significant=False, verdict_kind=Verdict.NO_GAP, effect=None)
+    assert paragraph(quiet).startswith("x_ddot: nothing is missing that the data show.")
 
 
 def test_an_interval_wider_than_its_value_says_so():
