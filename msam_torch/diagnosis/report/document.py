@@ -25,9 +25,7 @@ def markdown(report, figures: list[Figure]) -> str:
     md += [f"- {reason}" for reason in report.reasons] + ([""] if report.reasons else [])
     md += ["## Summary", ""] + [p for text in summary(report) for p in (text, "")]
     for g in report.equations:
-        md += _equation(g, report.series.get(g.target, {}), units)
-        md += _images(shown, f"{g.target}_residual_time", f"{g.target}_residual_vs_state",
-                      f"{g.target}_residual_correlation")
+        md += _equation(g, report.series.get(g.target, {}), units, shown)
     md += _how_far(report.measures)
     for label in ("train", "held_out"):
         md += _images(shown, f"free_run_{label}", f"frequency_response_{label}")
@@ -67,7 +65,8 @@ def unique_rows(rows: list[str]) -> list[str]:
     return list(dict.fromkeys(rows))
 
 
-def _equation(g, series: dict, units: Units) -> list[str]:
+def _equation(g, series: dict, units: Units, shown: dict) -> list[str]:
+    """One equation's section, each figure beside the text it illustrates."""
     md = [f"## {g.target}", "", f"- verdict: {g.verdict}", f"- starting model: `{g.start_equation}`",
           f"- theta re-fitted: `{g.retuned_equation}`", f"- adapted model: `{g.adapted_equation}`"]
     if g.significant:
@@ -82,9 +81,9 @@ def _equation(g, series: dict, units: Units) -> list[str]:
             md += [f"- rival, {c['rival']}: `{c['rival_equation']}`"]
     md += [f"- {reason}" for reason in g.checks.get("reasons", [])]
     md += [""] + _intervals(getattr(g, "intervals", None) or [])
-    md += _where(g.where, units)
+    md += _where(g.where, units) + _images(shown, f"{g.target}_residual_time", f"{g.target}_residual_vs_state")
     md += _simulated_which(g) if g.estimator.get("evaluation") == "simulation" else _which(g)
-    md += _residual_checks(g, series, units)
+    md += _residual_checks(g, series, units) + _images(shown, f"{g.target}_residual_correlation")
     return md
 
 
