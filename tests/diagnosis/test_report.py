@@ -1,7 +1,9 @@
-"""The gap report's files: figures with titles, units and legends at >= 120 dpi, residual
-correlations with their white-noise band, the frequency response, parameter and exponent
-intervals, clean tables, one self-contained HTML file and the diagnosis in TensorBoard; on a
-withheld-effect case (quadratic drag) and, marked slow, on the EMPS record."""
+"""The gap report's files: figures with titles, units and legends at >= 120 dpi, laid out without
+clipped or overlapping text and with the record's edges shaded, residual correlations with their
+white-noise band, the frequency response, parameter and exponent intervals, clean tables whose
+hypotheses are told apart, a plain-language summary before the numbers, one self-contained HTML
+file and the diagnosis in TensorBoard; on a withheld-effect case (quadratic drag) and, marked
+slow, on the EMPS record."""
 import math
 import re
 from dataclasses import replace
