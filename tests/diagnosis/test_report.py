@@ -95,12 +95,13 @@ def test_axis_labels_carry_the_declared_units():
 
 def test_the_record_edges_are_shaded_and_left_out_of_the_residual_axis():
     """Spikes of the derivative estimate at both ends of the record (half the savgol window: 7
-    samples) are shaded and clipped; nothing flagged: no 'flagged' legend entry."""
+    samples) are shaded and clipped; nothing flagged: no 'flagged' legend entry; a residual that is
+    not finite somewhere is drawn (it raised "Axis limits cannot be NaN or Inf")."""
     import matplotlib.pyplot as plt
 
     t = torch.linspace(0.0, 10.0, 251, dtype=torch.float64)
     r = torch.sin(t)
-    r[:4], r[-4:] = 50.0, -50.0
+    r[:4], r[-4:], r[100] = 50.0, -50.0, float("nan")  # NaN: a diverged fit's residual is not scaled
     where = {"t": t, "residual": r, "flagged": torch.zeros(251, dtype=torch.bool), "values": {"x": torch.cos(t)}}
     estimator = {"derivatives": {"x": {"method": "savgol", "window": 15}}, "refinement": 1}
     report = SimpleNamespace(series={"x_ddot": {"where": where}},

@@ -150,7 +150,8 @@ def _shade_edges(ax, t: np.ndarray, r: np.ndarray, inside: np.ndarray, edge: Edg
     """Shade the record's edges and scale the residual's axis to the samples between them."""
     if edge is None or not inside.any() or inside.all():
         return
-    clipped = "; clipped" if np.abs(r[~inside]).max() > np.abs(r[inside]).max() else ""
+    peak = lambda rows: np.abs(r[rows & np.isfinite(r)]).max(initial=0.0)
+    clipped = "; clipped" if peak(~inside) > peak(inside) else ""
     for low, high in ((t[0], t[0] + edge.width), (t[-1] - edge.width, t[-1])):
         ax.axvspan(low, high, color="0.85", zorder=0,
                    label=f"record edges: derivative estimate unreliable ({edge.why}{clipped})" if low == t[0] else None)
@@ -158,7 +159,8 @@ def _shade_edges(ax, t: np.ndarray, r: np.ndarray, inside: np.ndarray, edge: Edg
 
 
 def _scale(ax, values: np.ndarray) -> None:
-    """Scale the y-axis to ``values`` (if any) with a margin of 5 %."""
+    """Scale the y-axis to the finite ``values`` (if any) with a margin of 5 %."""
+    values = values[np.isfinite(values)]
     if not values.size:
         return
     low, high = float(values.min()), float(values.max())
