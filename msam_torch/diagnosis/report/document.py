@@ -143,8 +143,8 @@ def _which(g) -> list[str]:
     rows = unique_rows(rows)
     md += rows[:HYPOTHESES] + [""]
     if any(r.get("start") is not None for r in g.ranking):
-        md += [("An additive (or exchange) form is fitted from several starting values of gamma ('from'); each "
-                "start that ends at another gamma is its own row."), ""]
+        md += [("An additive (or exchange) form is fitted from several starting values of gamma ('from'), each "
+                "its own row: starts that end at the same gamma found the same fit."), ""]
     return md + ([f"{len(rows) - HYPOTHESES} more hypotheses in gap_report.json.", ""] if len(rows) > HYPOTHESES else [])
 
 

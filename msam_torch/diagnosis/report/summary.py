@@ -30,7 +30,7 @@ def _what(g) -> str:
         return f"{g.target}: the starting model misses {g.effect}" + (f" ({description})." if description else ".")
     if g.verdict_kind is Verdict.NOT_EXPLAINED:
         return f"{g.target}: the starting model misses something that no catalogued effect names."
-    return f"{g.target}: the data do not settle what the starting model misses; {g.effect} fits best (reasons below)."
+    return f"{g.target}: the data do not settle what the starting model misses; {g.effect} fits best (the reasons say why)."
 
 
 def _form(g) -> str:
