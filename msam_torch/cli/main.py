@@ -263,7 +263,8 @@ class _Parser(argparse.ArgumentParser):
         raise MSAMError(f"{self.prog}: {message}")
 
 
-def _parse(argv) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The ``msam`` command line: ``run`` and ``diagnose`` with their options."""
     parser = _Parser(prog="msam", description="Model Structure Adaptation Method (MSAM) with PyTorch.")
     parser.add_argument("--version", action="version", version=f"msam-torch {__version__}")
     common = _Parser(add_help=False)
@@ -294,6 +295,11 @@ def _parse(argv) -> argparse.Namespace:
     diag.add_argument("--no-plots", action="store_true", help="write the report without its figures")
     diag.add_argument("--no-tensorboard", action="store_true", help="do not write TensorBoard event files")
     diag.set_defaults(handler=_diagnose, out_default="{stem}_diagnosis")
+    return parser
+
+
+def _parse(argv) -> argparse.Namespace:
+    parser = build_parser()
     args, extra = parser.parse_known_args(argv)  # overrides may follow options
     unknown = [e for e in extra if e.startswith("-") or "=" not in e]
     if unknown:

@@ -8,7 +8,7 @@ import json
 from msam_torch.config.schema import Config
 
 
-def _type(node: dict, defs: dict) -> str:
+def type_text(node: dict, defs: dict) -> str:
     """A key's type as a reader would write it."""
     if "$ref" in node:
         return "section" if "properties" in defs[node["$ref"].split("/")[-1]] else "value"
@@ -17,14 +17,14 @@ def _type(node: dict, defs: dict) -> str:
     if "const" in node:
         return f"`{node['const']}`"
     if "anyOf" in node:
-        kinds = [_type(n, defs) for n in node["anyOf"] if n.get("type") != "null"]
+        kinds = [type_text(n, defs) for n in node["anyOf"] if n.get("type") != "null"]
         return " or ".join(dict.fromkeys(kinds)) + (" or null" if any(n.get("type") == "null" for n in node["anyOf"]) else "")
     kind = node.get("type", "any")
     if kind == "array":
-        return f"list of {_type(node.get('items', {}), defs)}"
+        return f"list of {type_text(node.get('items', {}), defs)}"
     if kind == "object":
         extra = node.get("additionalProperties")
-        return f"mapping of name to {_type(extra, defs)}" if isinstance(extra, dict) else "mapping"
+        return f"mapping of name to {type_text(extra, defs)}" if isinstance(extra, dict) else "mapping"
     return {"string": "text", "number": "number", "integer": "integer", "boolean": "true/false"}.get(kind, kind)
 
 
@@ -63,7 +63,7 @@ def rows(schema: dict | None = None) -> list[tuple[str, str, str, str]]:
             key = f"{prefix}{suffix}".lstrip(".")
             default = f"`{json.dumps(node['default'])}`" if "default" in node else ""
             described = node.get("description") or _section(node, defs).get("description", "")
-            out.append((key, _type(node, defs), default, " ".join(described.split())))
+            out.append((key, type_text(node, defs), default, " ".join(described.split())))
             walk(key, _children(node, defs))
 
     walk("", [(f".{k}", v) for k, v in schema["properties"].items()])

@@ -29,7 +29,9 @@ NOT_CATALOGUED = "power law, no catalogued effect"
 TOLERANCE = 0.2  # the catalogue's resolution: the least half-width of an exponent interval
 RATE_OF = {"position": "velocity", "velocity": "acceleration", "angle": "angular_velocity",
            "angular_velocity": "angular_acceleration", "charge": "current", "volume": "flow"}
-ASSUMED = {0: "position", 1: "velocity"}  # second-order equations with nothing declared
+ASSUMED = {0: "position", 1: "velocity"}
+# quantities whose difference (of two signals) the catalogue reads as the quantity itself
+READ_AS_ITSELF = ("position", "velocity", "angle", "angular_velocity", "level", "pressure", "voltage", "current")  # second-order equations with nothing declared
 # temperature scales whose zero is not absolute zero (a declared unit, lower case, spaces dropped)
 OFFSET_SCALES = {"c", "°c", "degc", "celsius", "degreesc", "degreecelsius", "degreescelsius",
                  "f", "°f", "degf", "fahrenheit", "degreesf", "degreefahrenheit", "degreesfahrenheit"}
@@ -70,14 +72,18 @@ class Roles:
 
     def of_expression(self, node: ast.AST) -> str | None:
         """The quantity of a signal, or of the difference ``a - b`` of two signals of one quantity
-        ``q`` where ``q_difference`` is a quantity (``T - Ta``: a temperature difference)."""
+        ``q``: ``q_difference`` where that is a quantity (``T - Ta``: a temperature difference, which
+        radiation's ``T^4`` does not read), else ``q`` itself for a quantity whose laws read a
+        difference as they read the signal (:data:`READ_AS_ITSELF`: a spring between two bodies
+        reads their relative displacement, a pipe between two tanks their level difference)."""
         if isinstance(node, ast.Name):
             return self.of(node.id)
         if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Sub) and \
                 isinstance(node.left, ast.Name) and isinstance(node.right, ast.Name):
             q = self.of(node.left.id)
-            return f"{q}_difference" if q is not None and q == self.of(node.right.id) \
-                and f"{q}_difference" in QUANTITIES else None
+            if q is None or q != self.of(node.right.id):
+                return None
+            return f"{q}_difference" if f"{q}_difference" in QUANTITIES else q if q in READ_AS_ITSELF else None
         return None
 
     def offset_scale(self, signal: str | None) -> str | None:
