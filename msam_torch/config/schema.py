@@ -169,6 +169,8 @@ class DataConfig(_Section):
     validation_file: Optional[str] = Field(None, description="held-out record (default: the validation range of 'file')")
     time: Optional[str] = Field(None, description="time column (or give sample_time)")
     sample_time: Optional[float] = Field(None, gt=0, description="sampling period when there is no time column")
+    time_unit: Optional[str] = Field(None, description="the unit of time (of the time column or sample_time), as the "
+                                     "report's axes and text write it, e.g. s; null: 'time unit'")
     columns: dict[str, str] = Field({}, description="signal name -> column name, for every measured signal")
     train: RangeConfig = Field(RangeConfig(), description="the slice of the record fitted")
     validation: Optional[RangeConfig] = Field(None, description="a held-out slice of the same record (or give validation_file)")

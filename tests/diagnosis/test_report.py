@@ -1,21 +1,28 @@
-"""The gap report's files: figures with titles, units and legends at >= 120 dpi, residual
-correlations with their white-noise band, the frequency response, parameter and exponent
-intervals, clean tables, one self-contained HTML file and the diagnosis in TensorBoard; on a
-withheld-effect case (quadratic drag) and, marked slow, on the EMPS record."""
+"""The gap report's files: figures with titles, units and legends at >= 120 dpi, laid out without
+clipped or overlapping text and with the record's edges shaded, residual correlations with their
+white-noise band, the frequency response, parameter and exponent intervals, clean tables whose
+hypotheses are told apart, a plain-language summary before the numbers, one self-contained HTML
+file and the diagnosis in TensorBoard; on a withheld-effect case (quadratic drag) and, marked
+slow, on the EMPS record."""
 import math
 import re
 from dataclasses import replace
 from functools import lru_cache
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from msam_torch.cli.main import main
 from msam_torch.diagnosis import Verdict, diagnose
-from msam_torch.diagnosis.report.document import interval_text, margin, markdown
-from msam_torch.diagnosis.report.figures import DPI, Units, correlations, render
+from msam_torch.diagnosis.report.document import HYPOTHESES, interval_text, margin, markdown
+from msam_torch.diagnosis.report.edges import Edges, edges
+from msam_torch.diagnosis.report.figures import DPI, correlations, draw, render
 from msam_torch.diagnosis.report.html import page
+from msam_torch.diagnosis.report.summary import paragraph
+from msam_torch.diagnosis.report.units import Units
 from tests.diagnosis.test_diagnose import FAST, case_data
 from tests.helpers import CONFIGS
 
@@ -80,6 +87,88 @@ def test_axis_labels_carry_the_declared_units():
     assert measured.time == "time (column t_s)"
     assert Units({"model": {"quantities": {"h": {"quantity": "level", "unit": None}}}}).label("h_dot") == (
         "h_dot (rate of level, unit not declared)")
+    timed = Units({"model": {"quantities": {"x": {"quantity": "position", "unit": "m"}}},
+                   "data": {"time": "t_s", "time_unit": "s"}})  # data.time_unit names the time column's unit
+    assert timed.time == "time [s]" and timed.label("x_ddot") == "x_ddot [m per s²]" and timed.times == "s"
+    assert timed.frequency() == "frequency (cycles per s)" and units.frequency() == "frequency (cycles per time unit)"
+
+
+def test_the_record_edges_are_shaded_and_left_out_of_the_residual_axis():
+    """Spikes of the derivative estimate at both ends of the record (half the savgol window: 7
+    samples) are shaded and clipped; nothing flagged: no 'flagged' legend entry; a residual that is
+    not finite somewhere is drawn (it raised "Axis limits cannot be NaN or Inf")."""
+    import matplotlib.pyplot as plt
+
+    t = torch.linspace(0.0, 10.0, 251, dtype=torch.float64)
+    r = torch.sin(t)
+    r[:4], r[-4:], r[100] = 50.0, -50.0, float("nan")  # NaN: a diverged fit's residual is not scaled
+    where = {"t": t, "residual": r, "flagged": torch.zeros(251, dtype=torch.bool), "values": {"x": torch.cos(t)}}
+    estimator = {"derivatives": {"x": {"method": "savgol", "window": 15}}, "refinement": 1}
+    report = SimpleNamespace(series={"x_ddot": {"where": where}},
+                             equations=[SimpleNamespace(target="x_ddot", estimator=estimator)])
+    (_, _, over_time), (_, _, against) = draw(report, Units({"data": {"time_unit": "s"}}))
+    for fig in (over_time, against):
+        low, high = fig.axes[0].get_ylim()
+        assert -1.2 < low < -0.99 and 0.99 < high < 1.2  # the sine, not the spikes
+        labels = [text.get_text().replace("\n", " ") for text in fig.legends[0].get_texts()]
+        assert not any("flagged" in label for label in labels) and clashes(fig) == []
+        plt.close(fig)
+    assert "record edges: derivative estimate unreliable (half the savgol window, 7 samples = 0.28 s; clipped)" in [
+        text.get_text().replace("\n", " ") for text in over_time.legends[0].get_texts()]
+    assert edges({"derivatives": {"x": {"method": "butterworth", "cutoff": 2.0}}}, "x_ddot", t.numpy()) == Edges(
+        0.5, "a period at the butterworth cut-off, 0.5 time units")
+    assert edges({"derivatives": "given"}, "x_ddot", t.numpy()) is None
+
+
+def shown_ticks(ax) -> list:
+    """The tick labels an axes draws: visible, with text, at a tick inside its view limits."""
+    labels = []
+    for axis, limits in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
+        low, high = sorted(limits)
+        slack = 1e-9 * (high - low)
+        labels += [label for tick in axis.get_major_ticks() + axis.get_minor_ticks()
+                   if low - slack <= tick.get_loc() <= high + slack
+                   for label in (tick.label1, tick.label2) if label.get_visible() and label.get_text().strip()]
+    return labels
+
+
+def clashes(fig) -> list[str]:
+    """What breaks the layout of a drawn figure: a text (title, label, tick label, legend) reaching
+    outside the canvas; a title, axis label or tick label overlapping another axes' or the figure's
+    title; a legend over an axes' data area."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    box = lambda artist: artist.get_window_extent(renderer)
+    owned = [(None, t) for t in [fig._suptitle, *fig.texts] if t is not None and t.get_text().strip()]
+    owned += [(ax, t) for ax in fig.axes for t in (ax.title, ax.xaxis.label, ax.yaxis.label) if t.get_text().strip()]
+    owned += [(ax, t) for ax in fig.axes for t in shown_ticks(ax)]
+    legends = fig.legends + [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
+    canvas = fig.bbox.padded(1)  # a pixel of rounding
+    named = [(repr(t.get_text()), t) for _, t in owned] + [("a legend", legend) for legend in legends]
+    found = [f"{name} outside the canvas" for name, artist in named
+             if not (canvas.contains(*box(artist).min) and canvas.contains(*box(artist).max))]
+    for k, (ax, a) in enumerate(owned):
+        found += [f"{a.get_text()!r} overlaps {b.get_text()!r}" for other, b in owned[k + 1:]
+                  if other is not ax and box(a).overlaps(box(b))]
+    found += [f"a legend over the data of {ax.get_title() or ax.get_ylabel()!r}" for legend in legends
+              for ax in fig.axes if box(legend).overlaps(box(ax).shrunk(1, 1))]
+    return found
+
+
+@pytest.mark.parametrize("quantities", [None, {s: {"quantity": q} for s, q in (("x", "position"), ("x_dot", "velocity"),
+                                                                              ("u", "force"))}])
+def test_every_figure_renders_without_clipped_or_overlapping_text(quantities):
+    """At the default size, with short (declared units) and long (quantities without units) labels."""
+    import matplotlib.pyplot as plt
+
+    report = drag_report()
+    drawn = draw(report, Units(report.config if quantities is None else {"model": {"quantities": quantities}}))
+    assert {f"{name}.png" for name, _, _ in drawn} == FIGURES
+    found = {}
+    for name, _, fig in drawn:
+        found[name] = clashes(fig)
+        plt.close(fig)
+    assert found == {name: [] for name, _, _ in drawn}
 
 
 def test_correlation_band_and_values_match_a_direct_computation():
@@ -126,6 +215,44 @@ def test_tables_have_no_duplicated_rows_and_no_zero_length_windows():
     assert "2 isolated flagged samples (no window; 0.4 % of the residual energy) are not listed." in text
     hypotheses = [r for r in tables(text) if r and r[0].startswith(f"| `{gap.ranking[0]['hypothesis']}`")]
     assert hypotheses and len(hypotheses[0]) == len({r for r in hypotheses[0]})
+
+
+def test_hypotheses_of_one_form_are_told_apart_by_their_start():
+    """The three starts of an additive form (ADDITIVE_STARTS) printed the same hypothesis text
+    three times; each row now says its kind and the start its fit began at."""
+    report = drag_report()
+    gap = report.equations[0]
+    assert sorted({r["start"] for r in gap.ranking if r["kind"] == "additive"}) == [-0.5, 0.5, 1.5]
+    assert all(r["start"] is None for r in gap.ranking if r["kind"] != "additive")
+    text = markdown(replace(report, equations=(replace(gap, ranking=gap.ranking[:HYPOTHESES]),)), [])
+    rows = next(rows for rows in tables(text) if rows and rows[0].startswith(f"| `{gap.ranking[0]['hypothesis']}`"))
+    told = [tuple(row.split(" | ")[:2]) for row in rows]  # hypothesis and kind
+    assert len(rows) == len(set(told)) == min(len(gap.ranking), HYPOTHESES)
+    best = gap.ranking[0]
+    assert rows[0].startswith(f"| `{best['hypothesis']}` | additive, from gamma = {best['start']:g} | quadratic drag |")
+
+
+def test_the_summary_reads_in_plain_language_before_the_numbers():
+    """What is missing, where, how much better on held-out data, how sure; gamma and the total
+    exponent each said once, with what each is."""
+    report = drag_report()
+    gap = report.equations[0]
+    naming, c = gap.naming, gap.confidence
+    printed = str(report)
+    lines = printed.splitlines()
+    assert lines[1] == "summary:" and lines[2].startswith("  x_ddot: the starting model misses quadratic drag (")
+    assert lines[3] == "numbers:" and lines[4] == "x_ddot: gap explained by quadratic drag"
+    assert (f"with gamma = {gap.exponent:.3f}: the added term varies as |x_dot|^{naming['total_exponent']:.2f} ± "
+            f"{naming['half_width']:.2f} (gamma plus the power of x_dot in the term it multiplies: the total "
+            f"exponent the catalogue compares; quadratic drag: {gap.catalogue_exponent})") in lines[2]
+    assert (f"On held-out data the adapted model's error (RMSE of x_ddot) is {100 * gap.improvement['relative']:.0f} % "
+            "lower than that of the starting model with its parameters re-fitted.") in lines[2]
+    assert f"How sure: it is the best fit in {100 * c['win_frequency']:.0f} % of {c['bootstrap_trials']} " in lines[2]
+    assert f"gamma {gap.exponent:.3f}; quadratic drag (mechanical): total exponent" in printed  # the numbers, labelled
+    text = markdown(report, [])
+    assert text.index("## Summary") < text.index(lines[2].strip()) < text.index("## x_ddot")
+    quiet = replace(gap, significant=False, verdict_kind=Verdict.NO_GAP, effect=None)
+    assert paragraph(quiet).startswith("x_ddot: nothing is missing that the data show.")
 
 
 def test_an_interval_wider_than_its_value_says_so():

@@ -1,13 +1,17 @@
-"""The gap report as a Markdown document: verdict, then per equation the models, parameter and
-exponent intervals, where, which, the residual checks with their figures; then how far.
+"""The gap report as a Markdown document: verdict and a plain-language summary (:mod:`.summary`),
+then per equation the models, parameter and exponent intervals, where, which, the residual checks
+with their figures; then how far.
 
 Tables are clean: rows that read the same are shown once, zero-length time windows (single
 flagged samples) are summarised in one line instead of listed, and an interval wider than its
-value says that the data do not determine it.
+value says that the data do not determine it. The hypotheses' rows are told apart by their kind
+and, for a form fitted from several starting exponents, the start each row's fit began at.
 """
 from __future__ import annotations
 
 from msam_torch.diagnosis.report.figures import Figure, correlations, residuals
+from msam_torch.diagnosis.report.summary import summary
+from msam_torch.diagnosis.report.units import Units
 
 WINDOWS = 10  # time windows listed, at most
 HYPOTHESES = 12  # ranked hypotheses listed, at most
@@ -16,13 +20,12 @@ MODEL_NAMES = {"start": "starting", "retuned": "theta re-fitted", "adapted": "ad
 
 def markdown(report, figures: list[Figure]) -> str:
     """The report (a :class:`~msam_torch.diagnosis.report.gap_report.GapReport`) as Markdown, its figures referenced by file name."""
-    shown = {f.name: f for f in figures}
+    shown, units = {f.name: f for f in figures}, Units(report.config)
     md = ["# Sim-to-real gap report", "", f"**Verdict: {report.verdict}**", ""]
     md += [f"- {reason}" for reason in report.reasons] + ([""] if report.reasons else [])
+    md += ["## Summary", ""] + [p for text in summary(report) for p in (text, "")]
     for g in report.equations:
-        md += _equation(g, report.series.get(g.target, {}))
-        md += _images(shown, f"{g.target}_residual_time", f"{g.target}_residual_vs_state",
-                      f"{g.target}_residual_correlation")
+        md += _equation(g, report.series.get(g.target, {}), units, shown)
     md += _how_far(report.measures)
     for label in ("train", "held_out"):
         md += _images(shown, f"free_run_{label}", f"frequency_response_{label}")
@@ -35,19 +38,19 @@ def _in_turn(in_turn: dict) -> list[str]:
     """The effects added in turn (:mod:`msam_torch.diagnosis.effects.multi`), each with the held-out errors before and after it."""
     if not in_turn.get("effects"):
         return []
-    md = ["## Effects in turn", "", "| step | equation | effect | exponent | held-out RMSE before -> after | "
+    md = ["## Effects in turn", "", "| step | equation | effect | gamma | held-out RMSE before -> after | "
           "free-run NRMSE before -> after |", "|---|---|---|---|---|---|"]
     for e in in_turn["effects"]:
         free = " -> ".join("-" if v is None else f"{v:.4g}" for v in (e["free_run_nrmse"]["before"], e["free_run_nrmse"]["after"]))
-        exponent = exponent_text(e["exponent"]).removeprefix("exponent ")
+        exponent = exponent_text(e["exponent"]).removeprefix("gamma ")
         md.append(f"| {e['step']} | {e['target']} | {e['effect']} | {exponent} | "
                   f"{e['heldout_rmse']['before']:.4g} -> {e['heldout_rmse']['after']:.4g} | {free} |")
     return md + ["", f"Stopped: {in_turn['stopped']}.", ""]
 
 
 def exponent_text(value: float | None) -> str:
-    """``exponent 1.993``, or ``no exponent`` (an offset)."""
-    return "no exponent" if value is None else f"exponent {value:.3f}"
+    """``gamma 1.993`` (the exponent fitted in the hypothesis's slot), or ``no exponent`` (an offset)."""
+    return "no exponent" if value is None else f"gamma {value:.3f}"
 
 
 def interval_text(low: float, high: float, value: float, scale: float = 1.0, unit: str = "") -> str:
@@ -62,7 +65,8 @@ def unique_rows(rows: list[str]) -> list[str]:
     return list(dict.fromkeys(rows))
 
 
-def _equation(g, series: dict) -> list[str]:
+def _equation(g, series: dict, units: Units, shown: dict) -> list[str]:
+    """One equation's section, each figure beside the text it illustrates."""
     md = [f"## {g.target}", "", f"- verdict: {g.verdict}", f"- starting model: `{g.start_equation}`",
           f"- theta re-fitted: `{g.retuned_equation}`", f"- adapted model: `{g.adapted_equation}`"]
     if g.significant:
@@ -77,9 +81,9 @@ def _equation(g, series: dict) -> list[str]:
             md += [f"- rival, {c['rival']}: `{c['rival_equation']}`"]
     md += [f"- {reason}" for reason in g.checks.get("reasons", [])]
     md += [""] + _intervals(getattr(g, "intervals", None) or [])
-    md += _where(g.where)
+    md += _where(g.where, units) + _images(shown, f"{g.target}_residual_time", f"{g.target}_residual_vs_state")
     md += _simulated_which(g) if g.estimator.get("evaluation") == "simulation" else _which(g)
-    md += _residual_checks(g, series)
+    md += _residual_checks(g, series, units) + _images(shown, f"{g.target}_residual_correlation")
     return md
 
 
@@ -101,7 +105,7 @@ def _intervals(terms: list[dict]) -> list[str]:
     return md + rows + [""]
 
 
-def _where(where: dict) -> list[str]:
+def _where(where: dict, units: Units) -> list[str]:
     md = ["### Where", "", f"{100 * where['flagged_fraction']:.0f} % of the record flagged"
           + (f" (the {where['model']} model)." if where.get("model") else "."), ""]
     if where.get("note"):
@@ -114,7 +118,7 @@ def _where(where: dict) -> list[str]:
     windows = [w for w in where["time_windows"] if w["stop"] > w["start"]]
     single = [w for w in where["time_windows"] if w["stop"] <= w["start"]]
     if windows:
-        md += ["| time window | share of residual energy |", "|---|---|"]
+        md += [f"| time window ({units.times}) | share of residual energy |", "|---|---|"]
         md += unique_rows([f"| {w['start']:.4g} .. {w['stop']:.4g} | {_percent(w['energy_share'])} |"
                            for w in windows[:WINDOWS]]) + [""]
     if len(windows) > WINDOWS:
@@ -130,15 +134,24 @@ def _which(g) -> list[str]:
     md = ["### Which: hypotheses by held-out RMSE", "", "| component | best hypothesis | improvement |", "|---|---|---|"]
     md += unique_rows([f"| `{c['component']}` | `{_cell(c['best_hypothesis'])}` | {100 * c['improvement']:.1f} % |"
                        for c in g.components]) + [""]
-    md += ["| hypothesis | effect | exponent | held-out RMSE | improvement |", "|---|---|---|---|---|"]
+    md += ["| hypothesis | kind | effect | gamma | held-out RMSE | improvement |", "|---|---|---|---|---|---|"]
     rows = []
     for r in g.ranking:
         e = "" if r["exponent"] is None else f"{r['exponent']:.3f}"
-        rows.append(f"| `{_cell(r['hypothesis'])}` | {r['effect']} | {e} | {r['heldout_rmse']:.4g} | "
+        rows.append(f"| `{_cell(r['hypothesis'])}` | {_kind(r)} | {r['effect']} | {e} | {r['heldout_rmse']:.4g} | "
                     f"{100 * r['improvement']:.1f} % |")
     rows = unique_rows(rows)
     md += rows[:HYPOTHESES] + [""]
+    if any(r.get("start") is not None for r in g.ranking):
+        md += [("An additive (or exchange) form is fitted from several starting values of gamma ('from'), each "
+                "its own row: starts that end at the same gamma found the same fit."), ""]
     return md + ([f"{len(rows) - HYPOTHESES} more hypotheses in gap_report.json.", ""] if len(rows) > HYPOTHESES else [])
+
+
+def _kind(row: dict) -> str:
+    """What a ranking row changes: ``multiplicative``, ``additive, from gamma = 0.5``, ..."""
+    kind = {"retuned": "theta re-fitted only", "offset": "constant added"}.get(row["kind"], row["kind"])
+    return kind + ("" if row.get("start") is None else f", from gamma = {row['start']:g}")
 
 
 def _simulated_which(g) -> list[str]:
@@ -154,14 +167,14 @@ def _simulated_which(g) -> list[str]:
     return md + rows[:HYPOTHESES] + [""]
 
 
-def _residual_checks(g, series: dict) -> list[str]:
+def _residual_checks(g, series: dict, units: Units) -> list[str]:
     """The residual's autocorrelation and cross-correlation with the inputs against the 95 %
     white-noise band, per model."""
     found = residuals(g.target, series, g.estimator)
     if found is None:
         return []
     source, by_model, inputs, spacing = found
-    md = ["### Residual checks", "", f"The {source}, a sample every {spacing:.3g} time units: share of lags 1..L "
+    md = ["### Residual checks", "", f"The {source}, a sample every {spacing:.3g} {units.times}: share of lags 1..L "
           "outside the 95 % band ±1.96/√N (a white residual leaves about 5 % outside).", ""]
     names = sorted(inputs)
     md += ["| model | N | L | band | autocorrelation outside | " + " | ".join(f"correlation with {u} outside"

@@ -1,9 +1,11 @@
-"""The gap report's figures: every one titled, its axes labelled with units (:class:`Units`) and a
-legend, rendered once to PNG at :data:`DPI` (the Markdown's files, the HTML's embedded images,
-TensorBoard's images).
+"""The gap report's figures: every one titled, its axes labelled with units (:class:`~.units.Units`)
+and a legend below its axes (off the data), laid out by matplotlib's constrained layout with long
+labels wrapped to their axes, rendered once to PNG at :data:`DPI` (the Markdown's files, the HTML's
+embedded images, TensorBoard's images).
 
 Per equation: the residual of the structure fitted where it holds over time and against each
-signal (where); the residual's autocorrelation and its cross-correlation with each input, with
+signal (where; the record's edges, where the derivative estimate is unreliable, shaded and left
+out of the axis scaling, :mod:`.edges`); the residual's autocorrelation and its cross-correlation with each input, with
 the white-noise band +-1.96/sqrt(N) (:func:`correlations`). Per record: the free runs of the
 starting, theta-refitted and adapted models against the measurement, and where the model has
 inputs, the empirical frequency response (Welch cross-spectral estimate, ``scipy.signal``) of the
@@ -20,11 +22,15 @@ import numpy as np
 from scipy import signal as sig
 from statsmodels.tsa.stattools import acf, ccf
 
+from msam_torch.diagnosis.report.edges import Edges, edges
+from msam_torch.diagnosis.report.units import Units
 from msam_torch.model.spec import split_derivative
 
 DPI = 130
 LAGS = 40  # correlation lags shown, at most (and at most a quarter of the residual)
 BAND = 1.96  # white-noise band of a correlation: +-BAND / sqrt(N) (95 %)
+LABEL_FILL = 1.3  # an axis label wraps beyond this many characters per point of its axes per point of font size
+LEGEND_FILL = 14  # characters of a legend entry per inch of the figure's width (wrapped beyond)
 EXCITED = 1e-3  # a frequency is shown where the input's power is at least this share of its peak
 MODELS = ("start", "retuned", "adapted")
 NAMES = {"measured": "measured", "start": "starting model", "retuned": "theta re-fitted", "adapted": "adapted model"}
@@ -38,45 +44,6 @@ class Figure:
     name: str
     title: str
     png: bytes
-
-
-class Units:
-    """Axis labels from the config: a declared ``model.quantities`` unit (``x [m]``, a derivative
-    ``x_dot [m per time unit]``), else the declared quantity, else the data column it is read
-    from, else a note that no unit is declared."""
-
-    def __init__(self, config: dict):
-        model, data = config.get("model", {}), config.get("data", {}) or {}
-        self.quantities = model.get("quantities", {}) or {}
-        self.columns = data.get("columns", {}) or {}
-        self.time_source = f"column {data['time']}" if data.get("time") else "units of the record"
-        self.time = f"time ({self.time_source})"
-
-    def unit(self, name: str) -> str | None:
-        own = (self.quantities.get(name) or {}).get("unit")
-        base, order = split_derivative(name)
-        declared = (self.quantities.get(base) or {}).get("unit") if order else None
-        if own is not None or declared is None:
-            return own
-        return f"{declared} per time unit" + ("²" if order == 2 else "")
-
-    def label(self, name: str) -> str:
-        unit = self.unit(name)
-        if unit is not None:
-            return f"{name} [{unit}]"
-        base, order = split_derivative(name)
-        if (self.quantities.get(name) or {}).get("quantity") is not None:
-            return f"{name} ({self.quantities[name]['quantity']}, unit not declared)"
-        if (self.quantities.get(base) or {}).get("quantity") is not None:
-            rate = {1: "rate of ", 2: "second derivative of "}[order]
-            return f"{name} ({rate}{self.quantities[base]['quantity']}, unit not declared)"
-        if base in self.columns:
-            return f"{name} ({'' if order == 0 else f'd{order}/dt{order} of '}column {self.columns[base]})"
-        return f"{name} (no unit declared)"
-
-    def ratio(self, output: str, input_: str) -> str:
-        a, b = self.unit(output), self.unit(input_)
-        return f"|{output} / {input_}|" + (f" [{a}/{b}]" if a and b else " (no units declared)")
 
 
 def correlations(residual: np.ndarray, inputs: dict, lags: int = LAGS) -> dict:
@@ -112,7 +79,13 @@ def frequency_response(t: np.ndarray, u: np.ndarray, ys: np.ndarray) -> tuple:
 
 
 def render(report, units: Units) -> list[Figure]:
-    """Every figure of ``report`` (a :class:`~msam_torch.diagnosis.report.gap_report.GapReport`), in report order."""
+    """Every figure of ``report`` (a :class:`~msam_torch.diagnosis.report.gap_report.GapReport`), in report order,
+    as PNG."""
+    return [_png(*drawn) for drawn in draw(report, units)]
+
+
+def draw(report, units: Units) -> list[tuple]:
+    """``(name, title, matplotlib figure)`` of every figure of ``report``, laid out, in report order."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -120,7 +93,8 @@ def render(report, units: Units) -> list[Figure]:
     for target, series in report.series.items():
         gap = next((g for g in report.equations if g.target == target), None)
         if series.get("where") is not None:
-            figures += _where(target, series["where"], units)
+            t = np.asarray(series["where"]["t"].cpu())
+            figures += _where(target, series["where"], units, edges(gap.estimator if gap else {}, target, t, units.times))
         residual = residuals(target, series, gap.estimator if gap else {})
         if residual is not None:
             figures.append(_correlation_figure(target, *residual, units))
@@ -139,28 +113,59 @@ def render(report, units: Units) -> list[Figure]:
     return figures
 
 
-def _where(target: str, where: dict, units: Units) -> list[Figure]:
+def _where(target: str, where: dict, units: Units, edge: Edges | None) -> list[tuple]:
     import matplotlib.pyplot as plt
 
     t, r, flagged = (np.asarray(where[k].cpu()) for k in ("t", "residual", "flagged"))
     model = where.get("model", "starting")
-    fig, ax = plt.subplots(figsize=(8, 3))
+    inside = np.ones_like(flagged) if edge is None else edge.inside(t)
+    fig, ax = plt.subplots(figsize=(8, 3.4), layout="constrained")
     ax.plot(t, r, lw=0.8, color="tab:blue", label=f"residual of the {model} structure fitted where it holds")
-    ax.scatter(t[flagged], r[flagged], s=6, color="tab:red", label="flagged (where it fails)")
+    if flagged.any():
+        ax.scatter(t[flagged], r[flagged], s=6, color="tab:red", label="flagged (where it fails)")
+    _shade_edges(ax, t, r, inside, edge)
     ax.set_xlabel(units.time), ax.set_ylabel(f"residual of {units.label(target)}")
     title = f"{target}: where the {model} model misses, over time"
     out = [_figure(fig, ax, f"{target}_residual_time", title)]
     values = where["values"]
     if values:
-        fig, axes = plt.subplots(1, len(values), figsize=(4 * len(values), 3.2), squeeze=False)
+        fig, axes = plt.subplots(1, len(values), figsize=(4 * len(values), 3.6), squeeze=False, sharey=True,
+                                 layout="constrained")
         for ax, (name, v) in zip(axes[0], values.items()):
             v = np.asarray(v.cpu())
-            ax.scatter(v[~flagged], r[~flagged], s=4, color="tab:blue", label="model holds")
-            ax.scatter(v[flagged], r[flagged], s=4, color="tab:red", label="flagged")
-            ax.set_xlabel(units.label(name)), ax.set_ylabel(f"residual of {units.label(target)}")
+            for rows, colour, label in ((~flagged & inside, "tab:blue", "model holds"),
+                                        (flagged & inside, "tab:red", "flagged"),
+                                        (~inside, "0.65", "record edges (derivative estimate unreliable)")):
+                if rows.any():
+                    ax.scatter(v[rows], r[rows], s=4, color=colour, label=label)
+            ax.set_xlabel(units.label(name))
+        _scale(axes[0, 0], r[inside])
+        axes[0, 0].set_ylabel(f"residual of {units.label(target)}")
         title = f"{target}: residual of the {model} structure against each signal"
         out.append(_figure(fig, axes[0, 0], f"{target}_residual_vs_state", title))
     return out
+
+
+def _shade_edges(ax, t: np.ndarray, r: np.ndarray, inside: np.ndarray, edge: Edges | None) -> None:
+    """Shade the record's edges and scale the residual's axis to the samples between them."""
+    if edge is None or not inside.any() or inside.all():
+        return
+    peak = lambda rows: np.abs(r[rows & np.isfinite(r)]).max(initial=0.0)
+    clipped = "; clipped" if peak(~inside) > peak(inside) else ""
+    for low, high in ((t[0], t[0] + edge.width), (t[-1] - edge.width, t[-1])):
+        ax.axvspan(low, high, color="0.85", zorder=0,
+                   label=f"record edges: derivative estimate unreliable ({edge.why}{clipped})" if low == t[0] else None)
+    _scale(ax, r[inside])
+
+
+def _scale(ax, values: np.ndarray) -> None:
+    """Scale the y-axis to the finite ``values`` (if any) with a margin of 5 %."""
+    values = values[np.isfinite(values)]
+    if not values.size:
+        return
+    low, high = float(values.min()), float(values.max())
+    pad = 0.05 * (high - low) or 1.0
+    ax.set_ylim(low - pad, high + pad)
 
 
 def residuals(target: str, series: dict, estimator: dict):
@@ -198,12 +203,13 @@ def _spacing(t, stride: int) -> float:
 
 
 def _correlation_figure(target: str, source: str, residuals: dict, inputs: dict, spacing: float,
-                        units: Units) -> Figure:
+                        units: Units) -> tuple:
     import matplotlib.pyplot as plt
 
     found = {m: correlations(r, inputs) for m, r in residuals.items()}
     names = sorted({u for c in found.values() for u in c["ccf"]})
-    fig, axes = plt.subplots(1, 1 + len(names), figsize=(4.2 * (1 + len(names)), 3.2), squeeze=False)
+    fig, axes = plt.subplots(1, 1 + len(names), figsize=(4.2 * (1 + len(names)), 3.6), squeeze=False,
+                             layout="constrained")
     first = next(iter(found.values()))
     for m, c in found.items():
         axes[0, 0].plot(spacing * np.arange(c["lags"] + 1), c["acf"], marker=".", lw=0.8, color=COLOURS[m], label=NAMES[m])
@@ -212,7 +218,7 @@ def _correlation_figure(target: str, source: str, residuals: dict, inputs: dict,
     for ax in axes[0]:
         ax.axhspan(-first["band"], first["band"], color="grey", alpha=0.25, label=f"±1.96/√N (N = {first['n']})")
         ax.axhline(0, color="black", lw=0.5)
-        ax.set_xlabel(f"lag (time, {units.time_source}; a sample every {spacing:.3g})")
+        ax.set_xlabel(f"lag ({units.times}; a sample every {spacing:.3g})")
     axes[0, 0].set_ylabel("autocorrelation (dimensionless)"), axes[0, 0].set_title("residual autocorrelation", fontsize=9)
     for ax, u in zip(axes[0, 1:], names):
         ax.set_ylabel(f"correlation with {u} (dimensionless)")
@@ -220,12 +226,13 @@ def _correlation_figure(target: str, source: str, residuals: dict, inputs: dict,
     return _figure(fig, axes[0, 0], f"{target}_residual_correlation", f"{target}: whiteness of the {source}")
 
 
-def _free_run(label: str, run: dict, units: Units) -> Figure:
+def _free_run(label: str, run: dict, units: Units) -> tuple:
     import matplotlib.pyplot as plt
 
     states = list(run["measured"])
     t = np.asarray(run["t"].cpu())
-    fig, axes = plt.subplots(len(states), 1, figsize=(8, 2.6 * len(states)), squeeze=False)
+    fig, axes = plt.subplots(len(states), 1, figsize=(8, 1.2 + 2.4 * len(states)), squeeze=False, sharex=True,
+                             layout="constrained")
     for ax, x in zip(axes[:, 0], states):
         ax.plot(t, np.asarray(run["measured"][x].cpu()), color=COLOURS["measured"], lw=1.2, label=NAMES["measured"])
         for k, m in enumerate(MODELS):
@@ -236,13 +243,14 @@ def _free_run(label: str, run: dict, units: Units) -> Figure:
     return _figure(fig, axes[0, 0], f"free_run_{label}", f"Free runs on the {record} record: measured and simulated")
 
 
-def _frequency(label: str, run: dict, inputs: dict, units: Units) -> Figure:
+def _frequency(label: str, run: dict, inputs: dict, units: Units) -> tuple:
     import matplotlib.pyplot as plt
     from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
 
     t = np.asarray(run["t"].cpu())
     pairs = [(x, u) for x in run["measured"] for u in inputs]
-    fig, axes = plt.subplots(2, len(pairs), figsize=(4.6 * len(pairs), 5.2), squeeze=False, sharex="col")
+    fig, axes = plt.subplots(2, len(pairs), figsize=(max(8.0, 4.6 * len(pairs)), 5.6), squeeze=False, sharex="col",
+                             layout="constrained")
     for col, (x, u) in enumerate(pairs):
         simulated = np.asarray(run["simulated"][x].cpu())
         rows = np.vstack([np.asarray(run["measured"][x].cpu())[None], simulated])
@@ -255,7 +263,7 @@ def _frequency(label: str, run: dict, inputs: dict, units: Units) -> Figure:
                 axes[0, col].loglog(f, np.abs(h[k]), **style)
                 axes[1, col].semilogx(f, np.degrees(np.unwrap(np.angle(h[k]))), **style)
         axes[0, col].set_ylabel(units.ratio(x, u)), axes[0, col].set_title(f"{u} → {x}", fontsize=9)
-        axes[1, col].set_ylabel("phase (degrees)"), axes[1, col].set_xlabel("frequency (cycles per time unit)")
+        axes[1, col].set_ylabel("phase (degrees)"), axes[1, col].set_xlabel(units.frequency())
         axes[1, col].xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
         axes[1, col].xaxis.set_major_formatter(FormatStrFormatter("%g"))
         axes[1, col].xaxis.set_minor_formatter(NullFormatter())
@@ -263,13 +271,26 @@ def _frequency(label: str, run: dict, inputs: dict, units: Units) -> Figure:
     return _figure(fig, axes[0, 0], f"frequency_response_{label}", title)
 
 
-def _figure(fig, legend_axis, name: str, title: str) -> Figure:
-    """Title, legend (outside the data where it fits) and PNG bytes of a matplotlib figure."""
+def _figure(fig, legend_axis, name: str, title: str) -> tuple:
+    """A matplotlib figure titled, its axis labels wrapped to their axes, the legend of
+    ``legend_axis`` below the axes (off the data), laid out by the constrained layout."""
+    fig.suptitle(textwrap.fill(title, int(11 * fig.get_figwidth())), fontsize=10)
+    for ax in fig.axes:
+        box = ax.get_position()
+        for label, inches in ((ax.xaxis.label, box.width * fig.get_figwidth()),
+                              (ax.yaxis.label, box.height * fig.get_figheight())):
+            label.set_text(textwrap.fill(label.get_text(), max(16, int(LABEL_FILL * 72 * inches / label.get_fontsize()))))
+    handles, labels = legend_axis.get_legend_handles_labels()
+    columns = min(len(labels), 2)
+    labels = [textwrap.fill(label, int(LEGEND_FILL * fig.get_figwidth() / columns)) for label in labels]
+    fig.legend(handles, labels, loc="outside lower center", ncols=columns, fontsize=7, frameon=False)
+    return name, title, fig
+
+
+def _png(name: str, title: str, fig) -> Figure:
+    """The PNG bytes of a drawn figure (closed)."""
     import matplotlib.pyplot as plt
 
-    fig.suptitle(textwrap.fill(title, int(11 * fig.get_figwidth())), fontsize=10)
-    legend_axis.legend(fontsize=7, loc="best")
-    fig.tight_layout()
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=DPI)
     plt.close(fig)

@@ -17,9 +17,11 @@ import torch
 
 from msam_torch.diagnosis.compare.verdict import Verdict
 from msam_torch.diagnosis.report.document import exponent_text, margin, markdown
-from msam_torch.diagnosis.report.figures import Units, render
+from msam_torch.diagnosis.report.figures import render
 from msam_torch.diagnosis.report.html import page
 from msam_torch.diagnosis.report.records import Checks, Confidence, Estimator, Improvement, InTurn, Naming, Where
+from msam_torch.diagnosis.report.summary import summary
+from msam_torch.diagnosis.report.units import Units
 from msam_torch.run.outputs import check_folder, one_set, write_atomic
 from msam_torch.run.result import _finite
 from msam_torch.run.state_model import StateModel
@@ -52,7 +54,7 @@ class EquationGap:
     the retuned and adapted models and the rule applied; ``structure_left``: residual structure
     the adapted model leaves, as a share of the retuned model's; ``components``: adjustable
     components ranked by how much their best hypothesis improves; ``ranking``: every valid
-    hypothesis, best first; ``where``: flagged fraction, time windows, state regions;
+    hypothesis, best first (``start``: the exponent an additive or exchange fit started from); ``where``: flagged fraction, time windows, state regions;
     ``estimator``: the weak form's test functions and the derivative estimator; ``intervals``:
     each term of the adapted model with its coefficient and exponent and their 90 % bootstrap
     intervals (:mod:`msam_torch.diagnosis.compare.intervals`; empty without bootstrap trials' fits).
@@ -86,7 +88,8 @@ class EquationGap:
 
 @dataclass(frozen=True)
 class GapReport:
-    """Where the gap lies, which effect causes it and how far it shrinks; ``str()`` summarises.
+    """Where the gap lies, which effect causes it and how far it shrinks; ``str()`` summarises (the
+    plain-language summary, :mod:`.summary`, then the numbers).
     ``verdict_kind``: the :class:`~msam_torch.diagnosis.compare.verdict.Verdict`; ``verdict``: its text (every explained
     equation's, with remarks)."""
 
@@ -112,6 +115,7 @@ class GapReport:
 
     def __str__(self) -> str:
         lines = [f"verdict: {self.verdict}"] + [f"  {r}" for r in self.reasons]
+        lines += ["summary:"] + [f"  {text}" for text in summary(self)] + ["numbers:"]
         for g in self.equations:
             c = g.confidence
             lines.append(f"{g.target}: {g.verdict}")

@@ -18,6 +18,7 @@ from msam_torch.diagnosis.compare.intervals import term_intervals
 from msam_torch.diagnosis.compare.verdict import Verdict, equation_verdict
 from msam_torch.diagnosis.effects.bootstrap import bootstrap
 from msam_torch.diagnosis.effects.hypotheses import (
+    COPIES,
     Fitted,
     Hypothesis,
     crossed_errors,
@@ -255,9 +256,11 @@ def _components(equation: Equation, hypotheses: list[Hypothesis], rmse: torch.Te
 
 def _ranking(equation: Equation, hypotheses: list[Hypothesis], rmse: torch.Tensor, names: list[str],
              named: Naming, original: Fitted, text) -> list[dict]:
-    """Every valid hypothesis, best held-out RMSE first."""
+    """Every valid hypothesis, best held-out RMSE first; ``start``: the exponent a fit of several starts
+    (an additive or exchange copy) started from, which tells its rows apart."""
     ranked = [int(c) for c in torch.argsort(rmse) if torch.isfinite(rmse[c])]
     return [{"hypothesis": hypotheses[c].label(equation), "kind": hypotheses[c].kind, "effect": names[c],
+             "start": hypotheses[c].start if hypotheses[c].kind in COPIES else None,
              "exponent": exponent(hypotheses[c], equation, original.gamma[0, c]),
              "catalogue_exponent": named.catalogue_exponent(c),
              "equation": text(c), "heldout_rmse": float(rmse[c]), "improvement": float(1 - rmse[c] / rmse[0])}
