@@ -531,3 +531,16 @@ def test_a_cross_fit_never_keeps_the_full_fit_that_saw_its_block(monkeypatch):
         return counts[0]
 
     assert stayed(True) == 10 and stayed(False) == 30
+
+
+def test_a_hint_follows_from_the_checks_that_failed():
+    """Too few held-out rows to test for structure: the hint is the longer record the checks need,
+    not that the candidates miss something (a slow record of a model missing nothing read that)."""
+    from msam_torch.diagnosis.compare.verdict import TRY, Verdict, no_gap_verdict
+
+    few = {"failed": ["only 9 independent held-out rows, too few to test ..."], "unchecked": "only 9 rows"}
+    kind, reasons = no_gap_verdict(few)
+    assert kind is Verdict.INCONCLUSIVE and reasons == [few["failed"][0], TRY["length"]]
+    structure = {"failed": ["the re-fitted start's residual is autocorrelated ..."]}
+    assert no_gap_verdict(structure)[1] == [structure["failed"][0], TRY["residual"]]
+    assert no_gap_verdict({"failed": []}) == (Verdict.NO_GAP, [])
