@@ -10,13 +10,17 @@ the 1x record's interval, and with the two exponents' difference inside its own 
     python -m experiments.bench.bench_diagnose [--threads 1] [--longer 10 50] [--repeats 3]
 
 The time is the diagnosis itself (``GapReport.seconds``: data loading excluded), the median of
-``--repeats`` runs.
+``--repeats`` runs. Each record runs in a process of its own, so that its peak resident memory
+(``ru_maxrss``: the record, its diagnosis and the interpreter with torch) is its own.
 """
 from __future__ import annotations
 
 import argparse
 import math
+import multiprocessing
+import resource
 import statistics
+from concurrent.futures import ProcessPoolExecutor
 
 import torch
 
@@ -38,7 +42,15 @@ def run(length: float, faster: int, repeats: int) -> dict:
     return {"samples": int(train.t.numel()), "seconds": statistics.median(r.seconds for r in reports),
             "verdict": reports[0].verdict, "exponent": g.exponent, "interval": interval,
             "half_width": g.estimator["half_width"], "decimation": g.estimator["decimation"],
-            "window": ", ".join(str(w) for w in windows if w) or "-"}
+            "window": ", ".join(str(w) for w in windows if w) or "-",
+            "peak_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20}
+
+
+def isolated(length: float, faster: int, repeats: int, threads: int) -> dict:
+    """:func:`run` in a fresh process (its peak memory its own)."""
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=torch.set_num_threads,
+                             initargs=(threads,)) as pool:
+        return pool.submit(run, length, faster, repeats).result()
 
 
 def agrees(row: dict, base: dict) -> bool:
@@ -69,18 +81,20 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    rows = [("1x", run(1.0, 1, args.repeats))]
-    rows += [(f"{k:g}x longer", run(k, 1, args.repeats)) for k in args.longer]
-    rows.append(("10x faster sampling", run(1.0, 10, args.repeats)))
+    rows = [("1x", isolated(1.0, 1, args.repeats, args.threads))]
+    rows += [(f"{k:g}x longer", isolated(k, 1, args.repeats, args.threads)) for k in args.longer]
+    rows.append(("10x faster sampling", isolated(1.0, 10, args.repeats, args.threads)))
     base = rows[0][1]["seconds"]
     print(f"{CASE}, {100 * NOISE:g} % noise, {args.threads} torch threads, median of {args.repeats} runs")
-    print("| record | samples | diagnosis s | ratio to 1x | verdict | exponent | interval | half-width | decimation "
-          "| derivative window | 1x verdict, exponent in 1x interval | 1x verdict, difference within its interval |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| record | samples | diagnosis s | ratio to 1x | peak memory GB | verdict | exponent | interval | half-width "
+          "| decimation | derivative window | 1x verdict, exponent in 1x interval | 1x verdict, difference within its "
+          "interval |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for label, r in rows:
         exponent = "-" if r["exponent"] is None else f"{r['exponent']:.3f}"
         interval = "-" if r["interval"] is None else "{:.3f} to {:.3f}".format(*r["interval"])
-        print(f"| {label} | {r['samples']} | {r['seconds']:.2f} | {r['seconds'] / base:.2f} | {r['verdict']} | "
+        print(f"| {label} | {r['samples']} | {r['seconds']:.2f} | {r['seconds'] / base:.2f} | {r['peak_gb']:.2f} "
+              f"| {r['verdict']} | "
               f"{exponent} | {interval} | {r['half_width']:.3g} | {r['decimation']} | {r['window']} | "
               f"{'yes' if agrees(r, rows[0][1]) else 'NO'} | {'yes' if agrees_jointly(r, rows[0][1]) else 'NO'} |")
 
