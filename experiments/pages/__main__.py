@@ -74,14 +74,14 @@ def main(argv: list[str]) -> int:
     if unknown:
         parser.error(f"unknown step {min(unknown)!r} (steps: {', '.join(s.name for s in page.steps)})")
     record_path = lambda step: ROOT / results / f"{step.name}.json"
+    records = {s.name: json.loads(record_path(s).read_text()) for s in page.steps if record_path(s).exists()}
     for step in page.steps:
-        chosen = step.name in args.steps if args.steps is not None else unfinished(json.loads(record_path(step).read_text())
-                                                                                if record_path(step).exists() else None)
+        chosen = step.name in args.steps if args.steps is not None else unfinished(records.get(step.name))
         step_args = step.quick if args.quick else step.args
         if chosen and step_args is not None:
             print(f"[{args.page}] {step.name} ...", file=sys.stderr, flush=True)
-            run_step([a.replace("{results}", str(results)) for a in step_args] + extra, record_path(step))
-    records = {s.name: json.loads(record_path(s).read_text()) for s in page.steps if record_path(s).exists()}
+            arguments = [a.replace("{results}", str(results)) for a in step_args] + extra
+            records[step.name] = run_step(arguments, record_path(step))
     path = args.path or ROOT / "docs" / "results" / f"{args.page}.md"
     write_atomic(path, render(args.page, page, records, argv))
     print(f"wrote {path}")
