@@ -15,6 +15,7 @@ import argparse
 import json
 import re
 import sys
+from itertools import pairwise
 from pathlib import Path
 
 from experiments.pages.plans import PAGES, Page, Step
@@ -32,11 +33,22 @@ def demoted(markdown: str, top: int = 3) -> str:
     return re.sub(r"^(#+) ", lambda m: "#" * (len(m.group(1)) + shift) + " ", markdown, flags=re.MULTILINE)
 
 
+def spaced(markdown: str) -> str:
+    """A blank line between a table and the text next to it (a table must stand in a block of its own)."""
+    lines = markdown.splitlines()
+    out = lines[:1]
+    for before, line in pairwise(lines):
+        if before.strip() and line.strip() and before.startswith("|") != line.startswith("|"):
+            out.append("")
+        out.append(line)
+    return "\n".join(out)
+
+
 def section(step: Step, record: dict | None, command: str) -> str:
     if record is None:
         return f"*Not measured yet: `{command} --steps {step.name}` measures it.*"
     output = record["output"].strip()
-    body = f"```text\n{output}\n```" if step.text else demoted(output)
+    body = f"```text\n{output}\n```" if step.text else spaced(demoted(output))
     failed = f"**The command failed (exit status {record['returncode']}); its output so far:**\n\n" \
         if record["returncode"] else ""
     return f"{failed}{body}\n\n{provenance(record)}"
