@@ -165,7 +165,7 @@ def main() -> int:
     parser.add_argument("--jobs", type=int, default=2, help="rows computed in parallel, one torch thread each")
     args = parser.parse_args()
     rows, table = [], []
-    print(" | ".join(HEADER), flush=True)
+    print(markdown_table(HEADER, []), flush=True)
     jobs = [(case, level, mode, rule) for case in args.cases for level in args.levels for rule in args.rules
             for mode in args.modes]
     with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn"), initializer=set_threads,
@@ -174,7 +174,7 @@ def main() -> int:
         for future in futures:  # in the order of the table
             rows += future.result()
             table.append(summary(future.result())[0])
-            print(" | ".join(table[-1]), flush=True)
+            print(markdown_table(HEADER, table[-1:]).splitlines()[-1], flush=True)
     totals = pd.DataFrame(rows).groupby(["evaluation", "rule"])
     successes = totals["success"].agg(lambda v: f"{int(v.sum())}/{len(v)}").to_dict()
     seconds, cpu = totals["seconds"].sum().to_dict(), totals["cpu_seconds"].sum().to_dict()
@@ -185,7 +185,7 @@ def main() -> int:
             / max(sum(x for (mode, _), x in v.items() if mode == "algebraic"), 1e-9)
         lines.append(f"cost ratio simulation / algebraic (all rows of this run): {ratio(seconds):.1f}x wall, "
                      f"{ratio(cpu):.1f}x CPU time")
-    print("\n".join(lines))
+    print("\n" + "\n".join(f"- {line}" for line in lines))
     out = Path(args.out)
     write_csv(out, "trials.csv", pd.DataFrame(rows))
     notes = (f"Trials per non-zero error level: {args.trials} (level 0: 1); refinement steps: {args.refinement}; "

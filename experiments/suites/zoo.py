@@ -18,7 +18,7 @@ developed on 6300-6599; each published figure names seeds that were not looked a
 Run (report: 300 cases; about 5-10 s per case on 2 busy cores):
     python -m experiments.suites.zoo --cases 300 --seed-start 1000 [--timeout 120] [--out runs/zoo.jsonl]
 Options: --noise 0.01 0.05 (cycle these levels instead of drawing), --domains mechanical thermal,
---no-sindy.
+--no-sindy, --max-new N (diagnose at most N cases not in ``--out``; 0 tabulates what it holds).
 """
 from __future__ import annotations
 
@@ -197,6 +197,8 @@ def main(argv=None) -> int:
     parser.add_argument("--timeout", type=int, default=120, help="seconds per diagnosis")
     parser.add_argument("--no-sindy", action="store_true")
     parser.add_argument("--out", type=Path, default=None, help="JSON lines, one per case (resumed if present)")
+    parser.add_argument("--max-new", type=int, default=None,
+                        help="diagnose at most this many cases not in --out, then tabulate what is done")
     args = parser.parse_args(argv)
     keep_freed_memory()
     torch.set_num_threads(1)
@@ -204,8 +206,11 @@ def main(argv=None) -> int:
     done = {}
     if args.out is not None and args.out.exists():
         done = {row["seed"]: row for row in map(json.loads, args.out.read_text().splitlines())}
-    rows, started = [], time.perf_counter()
+    rows, started, budget = [], time.perf_counter(), math.inf if args.max_new is None else args.max_new
     for k, seed in enumerate(range(args.seed_start, args.seed_start + args.cases)):
+        if seed not in done and budget <= 0:
+            continue
+        budget -= seed not in done
         row = done.get(seed) or run_case(seed, args)
         if seed not in done and args.out is not None:
             args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -220,7 +225,8 @@ def main(argv=None) -> int:
               file=sys.stderr, flush=True)
     domains = sorted({r["domain"] for r in rows})
     noises = sorted({r["noise"] for r in rows})
-    print(f"# Zoo: {len(rows)} cases, seeds {args.seed_start}-{args.seed_start + args.cases - 1}\n")
+    partial = "" if len(rows) == args.cases else f" of {args.cases} (partial: the other seeds not yet diagnosed)"
+    print(f"# Zoo: {len(rows)} cases{partial}, seeds {args.seed_start}-{args.seed_start + args.cases - 1}\n")
     print("## msam diagnose by domain\n\n" + table(rows, "domain", domains) + "\n")
     print("## msam diagnose by noise level\n\n" + table(rows, "noise", noises) + "\n")
     if not args.no_sindy:

@@ -23,7 +23,7 @@ adjustment function normalised by its RMS (units, design.md 2.7); and theta re-s
 result does not hinge on the nominal theta. Where candidates are judged by simulation
 (:data:`SIMULATED`), the step is a damped Gauss-Newton step in exponent units with a backtracking
 line search: the simulated sensitivities of exponents on correlated states are nearly collinear,
-and the undamped dM-scaled step with Eq. 20's mu leaves the exponents' range (docs/performance.md,
+and the undamped dM-scaled step with Eq. 20's mu leaves the exponents' range (docs/results/performance.md,
 "Algebraic vs simulation-based evaluation"). ``preset: paper`` keeps the literal step. The
 diagnosis always uses the weak form and its band-limited estimation; it is prepared without a
 preset.
