@@ -46,11 +46,6 @@ def changed(result: RunResult, config: Config) -> dict[str, list[tuple[str, str,
     return out
 
 
-def _kind(gap) -> str | None:
-    """The kind of the diagnosis's best hypothesis (its ranking's first entry)."""
-    return gap.ranking[0].get("kind") if gap.ranking else None
-
-
 def agreement(result: RunResult, report: GapReport, config: Config) -> list[str]:
     """Lines for ``msam run``'s output: per equation whose diagnosis names an effect, whether run's
     adapted structure reads the same law, and if not, the diagnosis's reading and why it differs;
@@ -75,7 +70,7 @@ def agreement(result: RunResult, report: GapReport, config: Config) -> list[str]
                         if abs(gamma) > 1e-3)
         lines.append(f"{reading} ({naming.get('text', gap.effect)}); its model: {gap.adapted_equation}")
         lines.append(f"  run's adapted structure differs (it adjusted {ran or 'no component'}): "
-                     f"{WHY.get(_kind(gap), WHY['multiplicative'])}; the diagnosis judges its reading on held-out rows "
+                     f"{WHY.get(gap.kind, WHY['multiplicative'])}; the diagnosis judges its reading on held-out rows "
                      "and names it only within its interval")
     return lines
 

@@ -85,6 +85,12 @@ class EquationGap:
     def verdict(self) -> str:
         return self.verdict_kind.text(self.effect)
 
+    @property
+    def kind(self) -> str | None:
+        """The kind of the winning hypothesis (``multiplicative``, ``additive``, ...): its row of
+        ``ranking``, which lists every valid hypothesis by held-out RMSE, the winner not always first."""
+        return next((r.get("kind") for r in self.ranking if r.get("hypothesis") == self.hypothesis), None)
+
 
 @dataclass(frozen=True)
 class GapReport:

@@ -41,8 +41,7 @@ def _form(g) -> str:
     naming = g.naming or {}
     if naming.get("total_exponent") is None or not naming.get("on"):
         return text + "."
-    row = next((r for r in g.ranking if r.get("hypothesis") == g.hypothesis), {})
-    term = "the adjusted term" if row.get("kind") == "multiplicative" else "the added term"
+    term = "the adjusted term" if g.kind == "multiplicative" else "the added term"
     on, total, half = naming["on"], naming["total_exponent"], naming["half_width"]
     catalogue = "" if g.catalogue_exponent is None else f"; {g.effect}: {g.catalogue_exponent}"
     return (f"{text}: {term} varies as |{on}|^{total:.2f} ± {half:.2f} (gamma plus the power of {on} in the term "

@@ -130,8 +130,10 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
                                             options),
                                      located(equation, where["summary"], options.relative, options.absolute))
     winner = best if is_significant else 0
-    if kind is Verdict.NOT_EXPLAINED and not is_significant and implicated(equation, where["summary"]):
-        reasons = [*reasons, _freed_finding(spec, equation, where["summary"], train, estimation, parameters, options,
+    fixed = implicated(equation, where["summary"]) if kind is Verdict.NOT_EXPLAINED and not is_significant else []
+    if fixed:
+        signal = where["summary"]["regions"][0]["signal"]
+        reasons = [*reasons, _freed_finding(spec, equation, fixed, signal, train, estimation, parameters, options,
                                             generator)]
 
     text = lambda c: fitted_text(extended, equation, choices, original, c, weak.scale)
@@ -177,12 +179,10 @@ def freed(equation: Equation, fixed: list[int], signal: str) -> Equation:
     return replace(equation, components=components, adjustments=adjustments)
 
 
-def _freed_finding(spec: ModelSpec, equation: Equation, summary: dict, train: Dataset, estimation: Estimation,
-                   parameters: dict, options: DiagnoseOptions, generator: torch.Generator) -> str:
-    """What the same diagnosis finds with the fixed components that read the located region's
-    signal made adjustable (:func:`freed`): its verdict, best hypothesis and held-out gain."""
-    fixed = implicated(equation, summary)
-    signal = summary["regions"][0]["signal"]
+def _freed_finding(spec: ModelSpec, equation: Equation, fixed: list[int], signal: str, train: Dataset,
+                   estimation: Estimation, parameters: dict, options: DiagnoseOptions, generator: torch.Generator) -> str:
+    """What the same diagnosis finds with the ``fixed`` components that read the located region's
+    ``signal`` made adjustable (:func:`freed`): its verdict, best hypothesis and held-out gain."""
     gap = diagnose_equation(spec, freed(equation, fixed, signal), train, estimation, parameters, options, generator).gap
     names = ", ".join(equation.components[i].term.text for i in fixed)
     if not gap.significant:
