@@ -9,11 +9,13 @@ Silverbox trains on the multisine part and is scored on the full arrow and on it
 rows (no extrapolation); EMPS trains on the estimation record and is scored on the validation
 pulses; the cascaded tanks train on the estimation record and are scored on the full test record.
 Each test record is simulated from its input with the initial state fitted to its first ``window``
-measured outputs (least squares), and scored by the RMSE of the remaining outputs: the baselines
-and the models of ``msam run`` (rk4 at half the sampling period, msam_torch.simulate). Rows marked
-"[own free run]" give the tool's own free-run figure instead: ``msam diagnose`` simulates from the
-first estimated state of the held-out record (here at the sampling period), and an ``msam run``
-with evaluation by simulation fits the initial states on the whole record.
+measured outputs (least squares), and scored by the RMSE of the remaining outputs: the baselines,
+the models of ``msam run`` (rk4 at half the sampling period, msam_torch.simulate) and the models of
+``msam diagnose`` (``GapReport.model``, the report's own solver at half the sampling period). Rows
+marked "[own free run]" give the tool's own free-run figure instead, where no model is held to
+score: a diagnosis by simulation simulates from the first estimated state of the held-out record
+(here at the sampling period), and an ``msam run`` with evaluation by simulation fits the initial
+states on the whole record.
 
 Baselines (``pip install -e .[baselines]``): the naive config's linear starting model fitted by
 output error (scipy.optimize.least_squares over every theta and the initial state) and a
@@ -53,7 +55,8 @@ CONFIGS = ROOT / "configs"
 class Case:
     """One benchmark: its records (dataset, training record, test record, input and output
     columns), the test subsets (label -> number of leading rows, None: all), the initial-state
-    window of the protocol, the input hold, the unit the RMSE is printed in and literature rows."""
+    window of the protocol, the input hold, the unit the RMSE is printed in and literature rows (text,
+    RMSE on the first subset or None, source)."""
 
     dataset: str
     train: str
@@ -68,6 +71,13 @@ class Case:
     literature: list = field(default_factory=list)
 
 
+CHAMPNEYS = ("Champneys, Beintema, Toth, Schoukens, Rogers, 'Baseline results for selected nonlinear system "
+             "identification benchmarks', arXiv:2405.10779 (2024), its state-of-the-art comparisons")
+EMPS_PAPER = ("Janot, Gautier, Brunot, 'Data set and reference models of EMPS', Nonlinear System Identification "
+              "Benchmarks workshop 2019")
+TANKS_TABLE = ("Hammerstein Box-Jenkins identification of the cascaded tanks benchmark, Mathematical Problems in "
+               "Engineering 2021, article 6613425, Table 2 (validation column, headed MSE there; its BLA and NLSS2 "
+               "figures are the RMSE of the benchmark paper)")
 TANKS_PAPER = ("Schoukens, Mattsson, Wigren, Noel, 'Cascaded tanks benchmark combining soft and hard "
                "nonlinearities', Workshop on Nonlinear System Identification Benchmarks, 2016")
 CASES = {
@@ -75,21 +85,19 @@ CASES = {
         "silverbox", "train_multisine", "test_arrow", "V1", "V2",
         {"arrow full": None, "arrow no extrapolation": 32_000}, 50, "foh", ("mV", 1e3),
         ("data.validation_file=../msam_torch/data/datasets/silverbox/test_arrow.csv.gz",),
-        [("published baselines on this split", "Champneys, Beintema, Toth, Schoukens, Rogers, 'Baseline results "
-          "for selected nonlinear system identification benchmarks', arXiv:2405.10779 (2024); figures not "
-          "reproduced here")]),
+        [("SS-encoder (deep subspace encoder)", 1.41, CHAMPNEYS)]),
     "emps": Case(
         "emps", "emps_estimation", "emps_validation_pulses", "force_N", "qm_m",
         {"validation pulses": None}, 20, "foh", ("mm", 1e3),
         (),
-        [("published baselines on this split", "Champneys et al., arXiv:2405.10779 (2024); reference model "
-          "(M, Fv, Fc, offset by IDIM-LS): Janot, Gautier, Brunot, 'Data set and reference models of EMPS', "
-          "Nonlinear System Identification Benchmarks workshop 2019; figures not reproduced here")]),
+        [("CT-SUBNET, the loader's protocol", 4.61, CHAMPNEYS),
+         ("reference model (M, Fv, Fc, offset by IDIM-LS): Fc 20.39 N", None, EMPS_PAPER)]),
     "cascaded_tanks": Case(
         "cascaded_tanks", "estimation", "validation", "u_V", "y_V",
         {"test record": None}, 5, "zoh", ("V", 1.0), (),
-        [(text, TANKS_PAPER) for text in ("best linear model: 0.75 V", "best black box: 0.34 V",
-                                          "grey box with explicit overflow: 0.18 V")]),
+        [(text, value, TANKS_PAPER) for text, value in (("best linear model", 0.75), ("best black box", 0.34),
+                                                        ("grey box with explicit overflow", 0.18))]
+        + [(text, value, TANKS_TABLE) for text, value in (("BLA", 0.757), ("NLSS2", 0.343), ("PNLSS", 0.450))]),
 }
 
 
@@ -235,30 +243,53 @@ def equation_models(spec: ModelSpec, entries: list) -> list[EquationModel]:
     return models
 
 
+def window_fit(case: Case, states: tuple, output: str, rec: Record, run) -> np.ndarray:
+    """The simulated output whose initial state fits the first ``window`` outputs (least squares
+    from a local quadratic fit: the output's level, its slope for the other states); ``run(x0,
+    steps)`` simulates the first ``steps`` rows of the output from ``x0``."""
+    t = np.arange(case.window) * rec.ts
+    head = np.polynomial.polynomial.polyfit(t, rec.y[:case.window], 2)
+    guess = np.array([head[0] if s == output else head[1] for s in states])
+    x0 = least_squares(lambda x: run(x, case.window) - rec.y[:case.window], guess, x_scale="jac").x
+    return np.nan_to_num(run(x0, len(rec.y)), nan=np.inf)
+
+
 def protocol_free_run(case: Case, spec: ModelSpec, models: list[EquationModel], output: str, rec: Record) -> np.ndarray:
-    """The simulated output (rk4 at half the sampling period, inputs linearly interpolated) whose
-    initial state fits the first ``window`` outputs (least squares from a local quadratic fit).
+    """The simulated output of ``msam run``'s model (rk4 at half the sampling period, inputs
+    linearly interpolated) from the window's initial state (:func:`window_fit`).
     Half the sampling period: at the full period the hand-made Silverbox model scores 3.22 mV
     instead of 2.22 mV on the arrow without extrapolation (configs/silverbox.yaml: Ts/2 is within
     2 % of Ts/4)."""
     t = torch.arange(len(rec.y), dtype=torch.float64) * rec.ts
     inputs = {spec.inputs[0]: torch.tensor(rec.u)}
-    head = np.polynomial.polynomial.polyfit(t[:case.window].numpy(), rec.y[:case.window], 2)
-    guess = np.array([head[0] if s == output else head[1] for s in spec.states])
 
     def run(x0, steps):
         states = simulate(spec, models, t[:steps], {k: v[:steps] for k, v in inputs.items()},
                           {s: float(v) for s, v in zip(spec.states, x0)}, step=rec.ts / 2)
         return states[output][0].numpy()
 
-    x0 = least_squares(lambda x: run(x, case.window) - rec.y[:case.window], guess, x_scale="jac").x
-    return np.nan_to_num(run(x0, len(rec.y)), nan=np.inf)
+    return window_fit(case, spec.states, output, rec, run)
 
 
-def diagnosis(path: Path, output: str, ts: float, y_std: float, unit: float) -> dict:
-    """``msam diagnose`` of the naive config (its own free run from the first estimated state of
-    the held-out record, at the sampling period): verdict, named effects, held-out free-run RMSE."""
-    report = diagnose(path, options=DiagnoseOptions(solver_step=ts))
+def report_free_run(case: Case, model, output: str, rec: Record) -> np.ndarray:
+    """The simulated output of a diagnosis's model (``GapReport.model``, an ``nn.Module``: its own
+    solver at half the sampling period) from the window's initial state (:func:`window_fit`)."""
+    model.substeps = 2 * model.substeps
+    t = torch.arange(len(rec.y), dtype=torch.float64) * rec.ts
+    u = torch.tensor(rec.u)[:, None]
+    column = model.states.index(output)
+
+    def run(x0, steps):
+        with torch.no_grad():
+            return model.simulate(t[:steps], u[:steps], torch.tensor(x0))[:, column].numpy()
+
+    return window_fit(case, model.states, output, rec, run)
+
+
+def diagnosis(case: Case, report, output: str, test: Record, parts: dict) -> dict:
+    """A naive config's diagnosis: verdict, named effects, its own held-out free-run RMSE (from the
+    first estimated state of the held-out record, at the sampling period) and, where the report
+    holds its models (evaluation by equation), the protocol RMSE of each stage's model."""
     held = report.measures.get("free_run", {}).get("held_out", {})
     per_state = held.get("states", {}).get(output)
     nrmse = {m: (per_state[m]["nrmse"] if per_state else held.get("nrmse", {}).get(m, float("nan")))
@@ -267,11 +298,15 @@ def diagnosis(path: Path, output: str, ts: float, y_std: float, unit: float) -> 
                       else ", no bootstrap (evaluation by simulation)")
     effects = [f"{g.target}: {g.effect} ({exponent_text(g.exponent)}{wins(g.confidence)})"
                for g in report.equations if g.significant]
+    stages = ("retuned", "adapted") + (("accepted",) if report.accepted else ())
+    protocol = {stage: scores(case, parts, report_free_run(case, report.model(stage), output, test))
+                for stage in (stages if report.models else ())}
     return {"verdict": report.verdict, "effects": effects, "adapted": [g.adapted_equation for g in report.equations],
             "retuned": [g.retuned_equation for g in report.equations],
             "at_catalogue_exponent": [g.naming["at_catalogue_exponent"] for g in report.equations
                                       if g.naming and g.naming.get("at_catalogue_exponent")],
-            "rmse": {m: float(v) * y_std * unit for m, v in nrmse.items()}}
+            "rmse": {m: float(v) * float(np.std(test.y, ddof=1)) * case.unit[1] for m, v in nrmse.items()},
+            "protocol": protocol}
 
 
 def run_case(name: str, baselines: bool, out: list[str]) -> None:
@@ -290,10 +325,18 @@ def run_case(name: str, baselines: bool, out: list[str]) -> None:
     seconds: dict[str, float] = {}
 
     begin = time.perf_counter()
-    d = diagnosis(naive, output, ts, float(np.std(test.y, ddof=1)), unit)
+    report = diagnose(naive, options=DiagnoseOptions(solver_step=ts))
     _timed(name, seconds, "msam diagnose (naive)", begin)
-    rows["naive start, theta re-fitted by msam diagnose [own free run]"] = {first: d["rmse"]["retuned"]}
-    rows["msam diagnose, naive config: adapted [own free run]"] = {first: d["rmse"]["adapted"]}
+    begin = time.perf_counter()
+    d = diagnosis(case, report, output, test, parts)
+    _timed(name, seconds, "scoring the diagnosis's models", begin)
+    labels = {"retuned": "naive start, theta re-fitted by msam diagnose", "adapted": "msam diagnose, naive config: adapted",
+              "accepted": "msam diagnose, naive config: every effect added in turn"}
+    for stage, label in labels.items():
+        if stage in d["protocol"]:
+            rows[label] = d["protocol"][stage]
+        elif stage in d["rmse"]:
+            rows[f"{label} [own free run]"] = {first: d["rmse"][stage]}
     notes.append(f"- diagnose verdict: **{d['verdict']}**; " + ("; ".join(d["effects"]) or "no effect named"))
     notes += [f"  - theta re-fitted: `{a}`; adapted: `{b}`" for a, b in zip(d["retuned"], d["adapted"])]
     notes += [f"  - named effect at its catalogue exponent (theta re-fitted): `{e}`" for e in d["at_catalogue_exponent"]]
@@ -337,9 +380,9 @@ def run_case(name: str, baselines: bool, out: list[str]) -> None:
     table = [f"\n## {name}\n", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     table += ["| " + " | ".join([model_name] + [_cell(cells.get(label)) for label in parts]) + " |"
               for model_name, cells in rows.items()]
-    table += ["| literature: " + text + " |" + " |" * len(parts) for text, _ in case.literature]
+    table += [f"| literature: {text} | {_cell(value)} |" + " |" * (len(parts) - 1) for text, value, _ in case.literature]
     table += [""] + notes
-    table.append("- literature sources: " + "; ".join(dict.fromkeys(source for _, source in case.literature)))
+    table.append("- literature sources: " + "; ".join(dict.fromkeys(source for _, _, source in case.literature)))
     table.append("- wall time (s): " + ", ".join(f"{k} {v:.1f}" for k, v in seconds.items()))
     out += table
     print("\n".join(table), flush=True)
