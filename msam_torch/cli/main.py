@@ -1,11 +1,11 @@
 """Command line: ``msam run CONFIG [--out DIR] [key=value ...]`` and
 ``msam diagnose CONFIG [--data FILE] [--validate FILE] [--out DIR] [key=value ...]``.
 
-Errors in the user's input print one line naming the place (key, file, column, row, option) and
-exit with status 2, without a traceback; a run or diagnosis that learnt nothing exits with 3
-(its result or report written and saying so); a bug prints one line and where its traceback is, and exits with 1;
-Ctrl-C exits with 130. The output folder is checked and locked before the run; a failed run
-leaves nothing behind, and a diagnosis replaces its files as one set.
+Errors in the user's input print one line naming the place (key, file, column, row, option) and exit
+with status 2, without a traceback; a record that tells nothing for a target exits with 3, as does a run
+or diagnosis that learnt nothing (its result or report written and saying so); a bug prints one line and
+where its traceback is, and exits with 1; Ctrl-C exits with 130. The output folder is checked and locked
+before the run; a failed run leaves nothing behind, and a diagnosis replaces its files as one set.
 """
 from __future__ import annotations
 
@@ -61,6 +61,8 @@ def _run(args) -> int:
     result = stop.record(result)
     path = result.save(out / "result.json")
     _require_information(result, path)
+    from msam_torch.diagnosis.agreement import stated
+    closing = [] if args.no_diagnosis or stop.interrupted else stated(config, result, Path(args.config).parent, path)
     weak = " on the weak form's rows" if result.data.get("form") == "weak" else ""
     for eq in result.equations:
         print(f"starting: {eq.start_equation}")
@@ -79,11 +81,8 @@ def _run(args) -> int:
         for record, rows in group["free_run_rmse"].items():
             print(f"free-run RMSE of {', '.join(group['outputs'])} on the {record} record: "
                   + " -> ".join(f"{', '.join(f'{v:.4g}' for v in rows[label])} ({label})" for label in rows))
-    if not (args.no_diagnosis or stop.interrupted):
-        from msam_torch.diagnosis.agreement import stated
-
-        for line in stated(config, result, Path(args.config).parent):
-            print(line)
+    for line in closing:
+        print(line)
     print(f"wrote {path}")
     if stop.interrupted:
         raise Interrupted(f"interrupted (Ctrl-C): the best state found so far is in {path}")
@@ -232,8 +231,9 @@ def diagnose_options(args):
 
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv``, run the command, and turn every way it can end into an exit status: 0 done;
-    2 bad input (one line naming the place); 3 a run or diagnosis that learnt nothing (its files record it);
-    1 a bug (one line and where its traceback is); 130 interrupted. A closed stdout ends quietly."""
+    2 bad input (one line naming the place); 3 nothing learnt (a target the record tells nothing for; a run or
+    diagnosis that learnt nothing: its files record it); 1 a bug (one line and where its traceback is); 130
+    interrupted. A closed stdout ends quietly."""
     try:
         args = _parse(argv)
     except SystemExit as exc:  # --help, --version

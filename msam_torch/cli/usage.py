@@ -35,7 +35,8 @@ def markdown() -> str:
              ("Every command and option of `msam`, generated from its parser "
              "(`python -m msam_torch.cli.usage`). `msam` and `python -m msam_torch` are the same "
              "command. A wrong option or value ends in one line naming it and exit status 2; a "
-             "diagnosis or run that learnt nothing ends with exit status 3."), ""]
+             "record that tells nothing for a target, or a diagnosis or run that learnt nothing, ends with "
+             "exit status 3."), ""]
     for name, (summary, sub) in _commands(parser).items():
         lines += [f"## `msam {name}`", "", f"{summary[:1].upper()}{summary[1:]}.", "",
                   f"```text\nmsam {name} CONFIG [OVERRIDES ...] [OPTIONS]\n```", "",

@@ -12,18 +12,21 @@ from typing import Mapping, Sequence
 
 import torch
 
-from msam_torch.errors import DataError
+from msam_torch.errors import DataError, Uninformative
 from msam_torch.model.spec import Equation, ModelSpec
 
 
-def check_variation(spec: ModelSpec, signals: Mapping[str, torch.Tensor], source: str) -> None:
+def check_variation(spec: ModelSpec, signals: Mapping[str, torch.Tensor], source: str,
+                    derived: frozenset[str] = frozenset()) -> None:
     """Targets must vary (the fitness correlates with them, Eq. 19); so must every adjustment
-    function's magnitude, or its exponent has nothing to act on."""
+    function's magnitude, or its exponent has nothing to act on. A target in ``derived`` (estimated
+    by numerical differentiation) must vary beyond the half of the working precision such an
+    estimate keeps."""
     for e, equation in enumerate(spec.equations):
         target = signals[equation.target]
         where = f"model.equations[{e}]"
         _enough_samples(target.shape[-1], [equation], where, source)
-        _varies(target, f"the target {equation.target!r} of {where}", source)
+        _varies(target, f"the target {equation.target!r} of {where}", source, equation.target in derived)
         expressions = [(f"components[{i}].term", c.term) for i, c in enumerate(equation.components)]
         expressions += [(f"adjustments[{i}]", f) for i, f in enumerate(equation.adjustments)]
         for key, expression in [("target", None)] + expressions:
@@ -60,10 +63,16 @@ def _enough_samples(samples: int, equations: Sequence[Equation], where: str, sou
                         f"values (theta and exponents); the fitness (Eq. 19) needs at least {unknowns + 2}")
 
 
-def _varies(values: torch.Tensor, what: str, source: str) -> None:
+def _varies(values: torch.Tensor, what: str, source: str, derived: bool = False) -> None:
     if _constant(values):
-        raise DataError(f"{source}: {what} is constant up to rounding: the fitness correlation (Eq. 19) "
-                        "needs it to vary")
+        raise Uninformative(f"{source}: {what} is constant up to rounding: the record tells nothing for it (the "
+                            "fitness correlation, Eq. 19, needs it to vary)")
+    spread, size = float(values.max() - values.min()), float(values.abs().max())
+    if derived and spread <= torch.finfo(values.dtype).eps ** 0.5 * size:
+        raise Uninformative(f"{source}: {what}, estimated from the data, is constant to within the precision of the "
+                            f"estimate (it varies by {spread / size:.2g} of its size; a derivative estimated from "
+                            "samples keeps at most half the digits): the record tells nothing about which terms "
+                            "the model misses")
 
 
 def _representable(value: torch.Tensor, what: str, source: str) -> None:

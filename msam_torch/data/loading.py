@@ -306,7 +306,7 @@ def build_dataset(t: np.ndarray, measured: dict[str, np.ndarray], config: DataCo
             "derivatives": {k: e.info for k, e in estimates.items()} or estimator.name,
             "noise_level": {k: noise_level(v) for k, v in measured.items()}}
     tensors = {k: torch.tensor(np.asarray(v, dtype=float), dtype=dtype) for k, v in signals.items()}
-    check_variation(spec, tensors, source)
+    check_variation(spec, tensors, source, frozenset(signals) - frozenset(measured))
     return Dataset(tensors, info, {k: torch.tensor(np.asarray(v, dtype=float), dtype=dtype) for k, v in measured.items()})
 
 

@@ -17,7 +17,7 @@ from msam_torch.config.to_spec import to_spec
 from msam_torch.diagnosis.catalogue.entries import TOLERANCE, power_in
 from msam_torch.diagnosis.compare.verdict import Verdict
 from msam_torch.diagnosis.report.gap_report import GapReport
-from msam_torch.errors import MSAMError
+from msam_torch.errors import MSAMError, NoInformation, Uninformative
 from msam_torch.run.progress import LOGGER
 from msam_torch.run.result import RunResult
 
@@ -75,10 +75,11 @@ def agreement(result: RunResult, report: GapReport, config: Config) -> list[str]
     return lines
 
 
-def stated(config: Config, result: RunResult, base_dir: Path | None = None) -> list[str]:
+def stated(config: Config, result: RunResult, base_dir: Path | None = None, path: Path | None = None) -> list[str]:
     """``msam run``'s closing lines on measured data evaluated algebraically: the diagnosis of the
     same record (its default options) and :func:`agreement`; none for a simulated system or a run
-    evaluated by simulation."""
+    evaluated by simulation. A record that tells nothing for a target makes the run's result carry
+    no information (:class:`~msam_torch.errors.NoInformation`; ``path``: the result written)."""
     if config.data.system is not None or config.adaptation.evaluation == "simulation":
         return []
     from msam_torch.diagnosis.stages.pipeline import diagnose
@@ -86,6 +87,8 @@ def stated(config: Config, result: RunResult, base_dir: Path | None = None) -> l
     LOGGER.info("diagnosing the same record (--no-diagnosis skips it)")
     try:
         report = diagnose(config, base_dir=base_dir)
+    except Uninformative as exc:
+        raise NoInformation(f"{exc}; the adapted model carries no information{f' ({path} records the run)' if path else ''}")
     except MSAMError as exc:
         return [f"diagnosis: none ({exc})"]
     return agreement(result, report, config)

@@ -52,16 +52,6 @@ def set_value(frame, column, rows, value):
     frame.loc[rows, column] = value
 
 
-def constant_target(tmp_path):
-    config, frame = measured_case("harmonic", every=5)
-    frame["x_ddot"] = 1.0
-    frame.to_csv(tmp_path / "data.csv", index=False)
-    config["data"] = {"file": "data.csv", "time": "t", "columns": {c: c for c in ("x", "x_dot", "x_ddot", "u")},
-                      "derivatives": "exact"}
-    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
-    return tmp_path / "config.yaml"
-
-
 def irregular(frame):
     frame.loc[50:, "t"] += 0.004
 
@@ -92,7 +82,6 @@ CASES = {
     "irregular sampling": (edit_frame(irregular), [], ["data.csv", "irregular sampling", "line 52", "data.resample=true"]),
     "fewer samples than the window": (few_rows, [], ["data.csv", "column 'x'", "12 samples", "window of 31"]),
     "constant signal to differentiate": (edit_frame(lambda f: set_value(f, "x", slice(None), 0.25)), [], ["data.csv", "column 'x'", "constant"]),
-    "constant target": (constant_target, [], ["data.csv", "'x_ddot'", "constant", "Eq. 19"]),
     "unknown config key": (edit_config(lambda c: c["data"].update(windw=31)), [], ["data.windw"]),
     "wrong type": (edit_config(lambda c: c["data"].update(window="wide")), [], ["data.window"]),
     "malformed YAML": (edit_config(lambda t: t.replace("data:", "data: [", 1), text=True), [],
