@@ -20,6 +20,7 @@ from pathlib import Path
 
 from msam_torch import __version__
 from msam_torch.cli.argtypes import positive, solver
+from msam_torch.cli.learnt import require_diagnosis, require_information
 from msam_torch.engine.allocator import keep_freed_memory
 from msam_torch.errors import ConfigError, Interrupted, MSAMError, NoInformation
 from msam_torch.run.progress import LOGGER, logging_to, step
@@ -60,7 +61,7 @@ def _run(args) -> int:
         tracker.save_config(dump_config(config))
     result = stop.record(result)
     path = result.save(out / "result.json")
-    _require_information(result, path)
+    require_information(result, path)
     from msam_torch.diagnosis.agreement import stated
     closing = [] if args.no_diagnosis or stop.interrupted else stated(config, result, Path(args.config).parent, path)
     weak = " on the weak form's rows" if result.data.get("form") == "weak" else ""
@@ -145,44 +146,6 @@ class _Stop:
         return replace(result, data={**result.data, "stopped": why})
 
 
-def _require_information(result, path: Path) -> None:
-    """A run whose every candidate diverged, or whose fitted values are not finite, learnt nothing:
-    no equation is printed; ``path`` (written) records it."""
-    import math
-
-    for eq in result.equations:
-        if eq.ranking and all(c["diverged"] for c in eq.ranking):
-            raise NoInformation(f"{eq.target}: every one of the {len(eq.ranking)} candidates diverged "
-                                f"(|gamma| beyond adaptation.gamma_limit or a non-finite fitness); {path} records it")
-        values = [*eq.theta, *(g for g in eq.exponents if g is not None), *eq.adapted.values()]
-        if not all(math.isfinite(v) for v in values):
-            raise NoInformation(f"{eq.target}: the fitted theta, exponents or measures are not finite "
-                                f"(check model.parameters and data.parametric_error); {path} records it")
-    for group in result.data.get("simulation", []):
-        for record, rows in group["free_run_rmse"].items():
-            if not all(math.isfinite(v) for label, row in rows.items() if label != "start" for v in row):
-                raise NoInformation(f"the free run of the adapted {', '.join(group['outputs'])} on the {record} "
-                                    f"record is not finite; {path} records it")
-
-
-def _require_diagnosis(report, path: Path) -> None:
-    """A diagnosis none of whose hypotheses (candidates, when judged by simulation) converged, or
-    whose re-fitted and adapted models have no finite held-out measure, learnt nothing: no verdict
-    is printed; ``path`` (written) records it."""
-    import math
-
-    from msam_torch.diagnosis.compare.verdict import TRY
-
-    for gap in report.equations:
-        if all(c.get("diverged", False) for c in gap.ranking):
-            hint = f" ({TRY['adaptation diverged']})" if TRY["adaptation diverged"] in gap.checks.get("reasons", ()) else ""
-            raise NoInformation(f"{gap.target}: every hypothesis of the diagnosis diverged or has a non-finite "
-                                f"held-out RMSE; {path} records it{hint}")
-        if not all(math.isfinite(gap.improvement[k]) for k in ("retuned_rmse", "adapted_rmse")):
-            raise NoInformation(f"{gap.target}: the held-out RMSE of the theta re-fitted or adapted model is not "
-                                f"finite; {path} records it")
-
-
 def _diagnose(args) -> int:
     from msam_torch.diagnosis.stages.pipeline import diagnose
 
@@ -195,7 +158,7 @@ def _diagnose(args) -> int:
     out = Path(args.out)
     LOGGER.info("writing the report to %s", out)
     path = report.save(out, plots=not args.no_plots, tensorboard=not args.no_tensorboard)
-    _require_diagnosis(report, path)
+    require_diagnosis(report, path)
     print(report)
     print(f"wrote {path}, {out / 'report.md'} and {out / 'report.html'}")
     return 0
