@@ -15,10 +15,12 @@ Seeds: the zoo, the scores and the baseline were written on seeds 0-199, later c
 developed on 6300-6599; each published figure names seeds that were not looked at before it
 (docs/diagnose.md, "Generated cases").
 
-Run (report: 300 cases; about 5-10 s per case on 2 busy cores):
+Run (report: 300 cases; about 5-10 s per case and process, one process per CPU):
     python -m experiments.suites.zoo --cases 300 --seed-start 1000 [--timeout 120] [--out runs/zoo.jsonl]
 Options: --noise 0.01 0.05 (cycle these levels instead of drawing), --domains mechanical thermal,
---no-sindy, --max-new N (diagnose at most N cases not in ``--out``; 0 tabulates what it holds).
+--no-sindy, --max-new N (diagnose at most N cases not in ``--out``; 0 tabulates what it holds),
+--workers N (processes side by side, one torch thread each; default: the CPUs; rows are written as
+they finish and tabulated in seed order).
 """
 from __future__ import annotations
 
@@ -30,6 +32,8 @@ import signal
 import sys
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_context
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -188,6 +192,23 @@ def effect_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _worker() -> None:
+    """A process that diagnoses cases: one torch thread, freed memory kept, the per-case alarm."""
+    keep_freed_memory()
+    torch.set_num_threads(1)
+    signal.signal(signal.SIGALRM, _alarm)
+
+
+def _diagnosed(seeds: list[int], args):
+    """The rows of ``seeds`` as they finish: in this process (one worker) or in ``args.workers``
+    processes side by side."""
+    if args.workers <= 1 or len(seeds) <= 1:
+        yield from (run_case(seed, args) for seed in seeds)
+        return
+    with ProcessPoolExecutor(min(args.workers, len(seeds)), mp_context=get_context("spawn"), initializer=_worker) as pool:
+        yield from (future.result() for future in as_completed([pool.submit(run_case, seed, args) for seed in seeds]))
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", type=int, default=300)
@@ -199,30 +220,30 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=None, help="JSON lines, one per case (resumed if present)")
     parser.add_argument("--max-new", type=int, default=None,
                         help="diagnose at most this many cases not in --out, then tabulate what is done")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                        help="processes diagnosing cases side by side, one torch thread each (default: the CPUs)")
     args = parser.parse_args(argv)
-    keep_freed_memory()
-    torch.set_num_threads(1)
-    signal.signal(signal.SIGALRM, _alarm)
+    _worker()
     done = {}
     if args.out is not None and args.out.exists():
         done = {row["seed"]: row for row in map(json.loads, args.out.read_text().splitlines())}
-    rows, started, budget = [], time.perf_counter(), math.inf if args.max_new is None else args.max_new
-    for k, seed in enumerate(range(args.seed_start, args.seed_start + args.cases)):
-        if seed not in done and budget <= 0:
-            continue
-        budget -= seed not in done
-        row = done.get(seed) or run_case(seed, args)
-        if seed not in done and args.out is not None:
+    seeds = range(args.seed_start, args.seed_start + args.cases)
+    budget = len(seeds) if args.max_new is None else args.max_new
+    todo = [seed for seed in seeds if seed not in done][:max(0, budget)]
+    rows, started = [done[seed] for seed in seeds if seed in done], time.perf_counter()
+    for row in _diagnosed(todo, args):
+        if args.out is not None:
             args.out.parent.mkdir(parents=True, exist_ok=True)
             with args.out.open("a") as stream:
                 stream.write(json.dumps(_finite(row)) + "\n")
         rows.append(row)
         ours = row["ours"]
         outcome = ours.get("error") or ours["verdict"]
-        print(f"[{k + 1}/{args.cases}] seed {seed} {row['domain']}/{row['system']} noise {row['noise']:g} "
+        print(f"[{len(rows)}/{args.cases}] seed {row['seed']} {row['domain']}/{row['system']} noise {row['noise']:g} "
               f"truth {row['truth']['name'] or 'none'} -> {outcome} "
               f"({row.get('diagnose_s', math.nan):.1f} s; {time.perf_counter() - started:.0f} s total)",
               file=sys.stderr, flush=True)
+    rows.sort(key=lambda r: r["seed"])
     domains = sorted({r["domain"] for r in rows})
     noises = sorted({r["noise"] for r in rows})
     partial = "" if len(rows) == args.cases else f" of {args.cases} (partial: the other seeds not yet diagnosed)"
