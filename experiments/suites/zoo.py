@@ -43,7 +43,8 @@ import torch  # noqa: E402
 from msam_torch.diagnosis import diagnose  # noqa: E402
 from msam_torch.engine.allocator import keep_freed_memory  # noqa: E402
 from msam_torch.run.result import _finite  # noqa: E402
-from msam_torch.zoo import DOMAINS, generate, score, sindy  # noqa: E402
+from msam_torch.zoo import DOMAINS, generate, oracle, score, sindy  # noqa: E402
+from msam_torch.zoo.one_answer import one_answer
 
 LOW_NOISE = 0.01  # "<= 1 % noise" rows of the acceptance figures
 
@@ -71,6 +72,14 @@ def _alarm(signum, frame):
     raise Timeout()
 
 
+def _attempt(function, *arguments):
+    """``function(*arguments)``, or its error as a finding."""
+    try:
+        return function(*arguments)
+    except Exception as exc:  # noqa: BLE001 (a check the case fails is a finding, not a crash of the run)
+        return {"error": f"{type(exc).__name__}: {exc}".splitlines()[0][:300]}
+
+
 def run_case(seed: int, args) -> dict:
     """Generate, diagnose and score one case (and the baseline); a row of the tables."""
     noise = args.noise[seed % len(args.noise)] if args.noise else None
@@ -90,6 +99,12 @@ def run_case(seed: int, args) -> dict:
             row["ours"]["equations"] = {g.target: {"verdict": g.verdict, "hypothesis": g.hypothesis,
                                                    "exponent": g.exponent, "naming": _naming(g)}
                                         for g in report.equations}
+            signal.alarm(args.timeout)  # msam run and the oracle: their own time
+            started = time.perf_counter()
+            row["ours"]["one_answer"] = _attempt(one_answer, config, report)
+            if case.truth["kind"] == "catalogued":
+                row["oracle"] = _attempt(oracle.identifiable, case.config, case.truth, case.train, case.validation)
+            row["checks_s"] = time.perf_counter() - started
     except Timeout:
         row["ours"] = {"error": f"timeout after {args.timeout} s"}
     except Exception as exc:  # a case the diagnosis cannot take is a finding, not a crash of the run
@@ -179,6 +194,39 @@ def sindy_table(rows: list[dict], group: str, labels: list) -> str:
     return "\n".join(lines)
 
 
+def _identifiable(noise=None):
+    return lambda r: (r.get("oracle") or {}).get("identifiable") is True and (noise is None or r["noise"] == noise)
+
+
+def acceptance_table(rows: list[dict], group: str, labels: list) -> str:
+    """Issue 54's acceptance figures, one line per group value: on cases whose record pins the true
+    law (:mod:`msam_torch.zoo.oracle`), the share named right; on all cases, the share of confident
+    wrong names; nulls' "no significant gap"; cases printing "no significant gap" beside their own
+    evidence of one; and on cases whose diagnosis names an effect, ``msam run`` reading the same law
+    or stating why it differs (:mod:`msam_torch.zoo.one_answer`). PySINDy's beside ours."""
+    lines = [(f"| {group} | cases | identifiable (of catalogued) | named right, identifiable (ours / PySINDy) | "
+              "confident wrong names, all cases (ours / PySINDy) | out of catalogue answered right | "
+              "nulls: no gap (ours / PySINDy) | 'no gap' beside evidence of a gap | "
+              "msam run: same law or states why (same law) |"), "|" + "---|" * 9]
+    for label in labels + ["all"]:
+        part = [r for r in rows if label == "all" or r[group] == label]
+        if not part:
+            continue
+        both = lambda rate, key, where, part=part: f"{rate(part, 'ours', key, where)} / " + (
+            rate(part, "sindy", key, where) if all("sindy" in r for r in part) else "-")
+        catalogued = [r for r in part if r["truth"]["kind"] == "catalogued"]
+        named = [r for r in part if isinstance(r["ours"].get("one_answer"), dict)]
+        answered = sum(bool(r["ours"]["one_answer"].get("agrees_or_states")) for r in named)
+        same = sum(bool(r["ours"]["one_answer"].get("same")) for r in named)
+        lines.append(
+            f"| {label} | {len(part)} | {sum(_identifiable()(r) for r in catalogued)}/{len(catalogued)} | "
+            f"{both(_rate, 'top1', _identifiable())} | {both(_inverse_rate, 'wrong_name', lambda r: True)} | "
+            f"{_rate(part, 'ours', 'answered_right', _is('out_of_catalogue'))} | {both(_rate, 'no_gap', _is('null'))} | "
+            f"{sum(bool(r['ours'].get('no_gap_beside_evidence')) for r in part)} | "
+            f"{answered}/{len(named)} ({same}) |")
+    return "\n".join(lines)
+
+
 def effect_table(rows: list[dict]) -> str:
     """Strict top-1 (catalogued) or confident wrong names (out of catalogue) per withheld effect."""
     names = sorted({r["truth"]["name"] or "(null)" for r in rows})
@@ -248,6 +296,8 @@ def main(argv=None) -> int:
     noises = sorted({r["noise"] for r in rows})
     partial = "" if len(rows) == args.cases else f" of {args.cases} (partial: the other seeds not yet diagnosed)"
     print(f"# Zoo: {len(rows)} cases{partial}, seeds {args.seed_start}-{args.seed_start + args.cases - 1}\n")
+    print("## Acceptance figures by domain\n\n" + acceptance_table(rows, "domain", domains) + "\n")
+    print("## Acceptance figures by noise level\n\n" + acceptance_table(rows, "noise", noises) + "\n")
     print("## msam diagnose by domain\n\n" + table(rows, "domain", domains) + "\n")
     print("## msam diagnose by noise level\n\n" + table(rows, "noise", noises) + "\n")
     if not args.no_sindy:
@@ -255,8 +305,8 @@ def main(argv=None) -> int:
         print("## Beside PySINDy by noise level\n\n" + sindy_table(rows, "noise", noises) + "\n")
     print("## By withheld effect\n\n" + effect_table(rows) + "\n")
     print("## Outcome classes (ours)\n\n" + score.outcome_table(rows) + "\n")
-    total = sum(r.get("generate_s", 0) + r.get("diagnose_s", 0) + r.get("sindy_s", 0) for r in rows)
-    print(f"time per case: {total / max(1, len(rows)):.2f} s (generate + diagnose + PySINDy); "
+    total = sum(r.get("generate_s", 0) + r.get("diagnose_s", 0) + r.get("checks_s", 0) + r.get("sindy_s", 0) for r in rows)
+    print(f"time per case: {total / max(1, len(rows)):.2f} s (generate + diagnose + oracle and msam run + PySINDy); "
           f"wall {time.perf_counter() - started:.0f} s")
     return 0
 

@@ -20,7 +20,7 @@ from msam_torch.zoo import excitation
 from msam_torch.zoo.domains import DOMAINS
 from msam_torch.zoo.effects import Combined, DrawnEffect
 from msam_torch.zoo.simulate import dense_grid, effect_share, rms, signals, simulate, unabsorbed
-from msam_torch.zoo.system import System
+from msam_torch.zoo.system import System, differences, factors, term_scale, term_value
 
 NULL_SHARE, OUT_OF_CATALOGUE_SHARE = 0.25, 0.15  # probabilities of a null and of an out-of-catalogue case
 NOISE_LEVELS = (0.0, 0.005, 0.01, 0.02, 0.05)  # fraction of each measured signal's standard deviation
@@ -179,12 +179,12 @@ def _size(rng, system: System, spec, run, t) -> DrawnEffect | None:
         return None
     values = signals(system, start, inputs, t)
     if spec.form in ("additive", "multiplicative"):
-        smooth = 1e-3 * rms(values[spec.function])
+        smooth = 1e-3 * rms(term_value(spec.function, values))
         unit = DrawnEffect(spec, 1.0, gamma, smooth)
         eq = system.equation(spec.target)
         if spec.form == "multiplicative":
             theta = eq.theta[eq.terms.index(spec.component)]
-            return replace(unit, coefficient=theta * abs(system.initial[spec.function]) ** -gamma)
+            return replace(unit, coefficient=theta * abs(term_value(spec.function, system.initial)) ** -gamma)
         left = unabsorbed(eq, values, unit.contribution(spec.target, values))
         rate = system.state_rates(values)[spec.target]
         share = rng.uniform(*SHARE_RANGE)
@@ -200,6 +200,9 @@ def _case(rng, seed, system: System, effect, noise, records, share, shares) -> C
     signal_names = list(system.states) + list(system.inputs)
     bases = sorted({split_derivative(s)[0] for s in signal_names})
     exponents = dict(zip(bases, (int(k) for k in rng.integers(-3, 4, len(bases)))))
+    for pair in differences(t for e in system.equations for t in e.terms):  # a difference's signals share a unit
+        first, second = (split_derivative(s)[0] for s in factors(pair)[0])
+        exponents[second] = exponents[first]
     exponents = {s: exponents[split_derivative(s)[0]] for s in signal_names}  # x_dot in x's unit per second
     scale = {s: 10.0 ** k for s, k in exponents.items()}
     measured = list(system.measured[int(rng.integers(len(system.measured)))])
@@ -225,16 +228,16 @@ def _case(rng, seed, system: System, effect, noise, records, share, shares) -> C
 def _config(rng, system: System, scale: dict, measured: list) -> tuple[dict, dict]:
     """Starting model in the case's units: true theta rescaled, then each off by up to 20 %."""
     parameters, equations, true_theta = {}, [], {}
-    adjustments = [f"abs({x})" for x in system.states]
+    adjustments = [f"abs({x})" for x in system.states + tuple(differences(t for e in system.equations for t in e.terms))]
     for eq in system.equations:
         base = split_derivative(eq.target)[0]
         components, true_theta[eq.target] = [], {}
         for term, theta in zip(eq.terms, eq.theta):
-            value = theta * scale[base] / np.prod([scale[s] for s in term.split("*")])
+            value = theta * scale[base] / term_scale(term, scale)
             name = f"p{len(parameters) + 1}"
             parameters[name] = float(value * (1 + rng.uniform(-PERTURBATION, PERTURBATION)))
             true_theta[eq.target][term] = float(value)
-            driven = any(s in system.inputs for s in term.split("*"))
+            driven = any(s in system.inputs for names in factors(term) for s in names)
             components.append({"term": term, "theta": name, **({"adjustable": False} if driven else {})})
         equations.append({"target": eq.target, "components": components, "adjustments": adjustments})
     config = {"model": {"states": list(system.states), "inputs": list(system.inputs), "parameters": parameters,
@@ -258,13 +261,15 @@ def _truth(system: System, effect, scale: dict, share: float, shares: dict, true
     e = effect.effect
     if e.form in ("additive", "multiplicative"):
         base = split_derivative(e.target)[0]
-        m_scale = np.prod([scale[s] for s in e.component.split("*")])
-        out["magnitude"] = float(effect.coefficient * scale[base] / m_scale / scale[e.function] ** effect.gamma)
-        out["smoothing"] = float(effect.smooth * scale[e.function])  # |f| -> sqrt(f^2 + s^2) for gamma < 0
+        m_scale, f_scale = term_scale(e.component, scale), term_scale(e.function, scale)
+        out["magnitude"] = float(effect.coefficient * scale[base] / m_scale / f_scale ** effect.gamma)
+        out["magnitudes"] = {t: out["magnitude"] * e.weight(t) * scale[split_derivative(t)[0]] / scale[base]
+                             for t in e.targets}  # the effect in each equation it enters
+        out["smoothing"] = float(effect.smooth * f_scale)  # |f| -> sqrt(f^2 + s^2) for gamma < 0
         if e.exchange:  # ... - magnitude_exchange * e|e|^gamma
             out["exchange"] = e.exchange
             out["exchange_magnitude"] = float(effect.coefficient * scale[base] / scale[e.exchange] ** (1 + effect.gamma))
-        out["targets"] = [e.target]
+        out["targets"] = list(e.targets)
     else:
         out["targets"] = e.target.split(",")
         out["width"] = float(effect.width * scale[effect.input])

@@ -46,6 +46,36 @@ def rotational(rng) -> System:
                        ("angle", "angular_velocity"), "torque")
 
 
+def two_bodies(rng) -> System:
+    """``m1 x1'' = -k (x1 - x2) - c (x1' - x2') + u``, ``m2 x2'' = k (x1 - x2) + c (x1' - x2') - k2 x2 - c2 x2'``:
+    a driven body coupled by a spring and a damper to a second one that stands on a stiffer spring
+    (a quarter car); an effect between the bodies reads their relative displacement or velocity and
+    acts on both (the reaction on the second body, times ``-m1/m2``)."""
+    f0 = log_uniform(rng, 0.2, 5.0)
+    w0 = 2 * np.pi * f0
+    m1 = log_uniform(rng, 0.05, 20.0)
+    m2 = m1 * log_uniform(rng, 0.3, 1.0)
+    k = m1 * w0**2
+    k2 = k * log_uniform(rng, 1.0, 4.0)
+    c, c2 = 2 * rng.uniform(0.05, 0.3) * np.sqrt(k * m1), 2 * rng.uniform(0.02, 0.1) * np.sqrt(k2 * m2)
+    amplitude = log_uniform(rng, 0.005, 0.5)  # relative displacement scale (m)
+    equations = (Equation("x1_ddot", ("x1 - x2", "x1_dot - x2_dot", "u"), (-k / m1, -c / m1, 1 / m1)),
+                 Equation("x2_ddot", ("x1 - x2", "x1_dot - x2_dot", "x2", "x2_dot"), (k / m2, c / m2, -k2 / m2, -c2 / m2)))
+    between = (("x2_ddot", -m1 / m2),)
+    effects = (
+        Effect("Coulomb friction", "x1_ddot", "x1_dot - x2_dot", "x1_dot - x2_dot", exponent=(-1.0, -1.0), also=between),
+        Effect("quadratic drag", "x1_ddot", "x1_dot - x2_dot", "x1_dot - x2_dot", exponent=(1.0, 1.0), also=between),
+        Effect("cubic stiffness", "x1_ddot", "x1 - x2", "x1 - x2", exponent=(2.0, 2.0), also=between),
+    ) + input_effects(("u",), ("x1_ddot",))
+    x2 = amplitude * k / k2
+    fastest = np.sqrt(np.abs(np.linalg.eigvals([[k / m1, -k / m1], [-k / m2, (k + k2) / m2]])).max())
+    return System("mechanical", "two bodies", ("x1", "x1_dot", "x2", "x2_dot"), ("u",), equations,
+                  {"x1": "position", "x1_dot": "velocity", "x2": "position", "x2_dot": "velocity", "u": "force"},
+                  {"x1": 0.0, "x1_dot": 0.0, "x2": 0.0, "x2_dot": 0.0},
+                  {"x1": amplitude, "x1_dot": amplitude * w0, "x2": x2, "x2_dot": x2 * w0}, 2 * np.pi / fastest, effects,
+                  drive={"u": (0.0, k * amplitude)}, measured=(("x1", "x1_dot", "x2", "x2_dot"), ("x1", "x2")))
+
+
 def dc_motor(rng) -> System:
     """``L i' = u - R i - K w``, ``J w' = K i - b w``: armature current and shaft speed."""
     tau_m = log_uniform(rng, 0.05, 2.0)
@@ -77,6 +107,30 @@ def rlc(rng) -> System:
     return System("electrical", "series RLC", ("v", "i"), ("u",), equations,
                   {"v": "voltage", "i": "current", "u": "voltage"}, {"v": 0.0, "i": 0.0}, {"v": volts, "i": volts * np.sqrt(capacitance / inductance)}, 1 / f0, effects,
                   drive={"u": (0.0, volts)}, measured=(("v", "i"),))
+
+
+def rlc_network(rng) -> System:
+    """Two capacitor nodes joined by an inductor: ``C1 v1' = (u - v1)/R1 - i``, ``L i' = (v1 - v2) - R i``,
+    ``C2 v2' = i - v2/R2``; the link's resistance may be non-linear, or its inductance saturate (the
+    current's rate on the voltage across it, ``v1 - v2``, growing with ``|i|``)."""
+    f0 = log_uniform(rng, 5.0, 5e3)
+    c1 = log_uniform(rng, 1e-7, 1e-3)
+    c2 = c1 * log_uniform(rng, 0.5, 2.0)
+    inductance = (c1 + c2) / (c1 * c2) / (2 * np.pi * f0) ** 2
+    impedance = np.sqrt(inductance / c1)
+    resistance = 2 * rng.uniform(0.05, 0.4) * impedance
+    r1, r2 = impedance * log_uniform(rng, 0.5, 2.0), impedance * log_uniform(rng, 0.5, 5.0)
+    volts = log_uniform(rng, 0.5, 50.0)
+    equations = (Equation("v1_dot", ("u", "v1", "i"), (1 / (r1 * c1), -1 / (r1 * c1), -1 / c1)),
+                 Equation("i_dot", ("v1 - v2", "i"), (1 / inductance, -resistance / inductance)),
+                 Equation("v2_dot", ("i", "v2"), (1 / c2, -1 / (r2 * c2))))
+    effects = (Effect("non-linear resistance", "i_dot", "i", "i", exponent=(1.0, 2.0)),
+               Effect("saturating inductance", "i_dot", "v1 - v2", "i", exponent=(0.5, 2.0), sign=1.0),
+               ) + input_effects(("u",), ("v1_dot",))
+    return System("electrical", "RLC network", ("v1", "i", "v2"), ("u",), equations,
+                  {"v1": "voltage", "i": "current", "v2": "voltage", "u": "voltage"}, {"v1": 0.0, "i": 0.0, "v2": 0.0},
+                  {"v1": volts, "i": volts / impedance, "v2": volts}, 1 / f0, effects, drive={"u": (0.0, volts)},
+                  measured=(("v1", "i", "v2"),))
 
 
 def _outflow(rng):
@@ -114,6 +168,28 @@ def cascaded_tanks(rng) -> System:
                   {"h1": "level", "h2": "level", "u": "voltage"}, {"h1": h0, "h2": h2}, {"h1": h0, "h2": h2}, 2 * np.pi / min(rate, rate1),
                   effects, drive={"u": (volts, 0.8 * volts)}, positive=("h1", "h2"),
                   measured=(("h1", "h2"),))
+
+
+def connected_tanks(rng) -> System:
+    """``h1' = -a1 (h1 - h2) + b u``, ``h2' = a2 (h1 - h2) - a3 h2``: a pumped tank joined at its bottom
+    to a second one that drains through an outlet; the pipe between them may follow Torricelli's law in
+    ``h1 - h2`` (in both tanks, the second's rate times the area ratio), the outlet too."""
+    h0, rate = _outflow(rng)  # the second tank's operating level and outflow rate
+    gain = log_uniform(rng, 0.01, 1.0)
+    rate1, areas = rate * rng.uniform(0.5, 2.0), rng.uniform(0.5, 2.0)  # pipe rate of tank 1, area 1 / area 2
+    difference = rate * h0 / (rate1 * areas)  # h1 - h2 at the operating point
+    volts = rate1 * difference / gain
+    equations = (Equation("h1_dot", ("h1 - h2", "u"), (-rate1, gain)),
+                 Equation("h2_dot", ("h1 - h2", "h2"), (rate1 * areas, -rate)))
+    effects = (Effect("Torricelli outflow", "h1_dot", "h1 - h2", "h1 - h2", form="multiplicative", exponent=(-0.5, -0.5),
+                      also=(("h2_dot", -areas),)),
+               Effect("Torricelli outflow", "h2_dot", "h2", "h2", form="multiplicative", exponent=(-0.5, -0.5)),
+               ) + input_effects(("u",), ("h1_dot",))
+    levels = {"h1": h0 + difference, "h2": h0}
+    fastest = np.abs(np.linalg.eigvals([[-rate1, rate1], [rate1 * areas, -rate1 * areas - rate]])).max()
+    return System("hydraulic", "connected tanks", ("h1", "h2"), ("u",), equations,
+                  {"h1": "level", "h2": "level", "u": "voltage"}, levels, levels, 2 * np.pi / fastest,
+                  effects, drive={"u": (volts, 0.8 * volts)}, positive=("h1", "h2"), measured=(("h1", "h2"),))
 
 
 def heated_body(rng) -> System:
@@ -163,10 +239,10 @@ def chemostat(rng) -> System:
 
 
 DOMAINS: dict[str, tuple] = {
-    "mechanical": (translational, rotational),
+    "mechanical": (translational, rotational, two_bodies),
     "electromechanical": (dc_motor,),
-    "electrical": (rlc,),
-    "hydraulic": (tank, cascaded_tanks),
+    "electrical": (rlc, rlc_network),
+    "hydraulic": (tank, cascaded_tanks, connected_tanks),
     "thermal": (heated_body,),
     "population_kinetics": (predator_prey, chemostat),
 }

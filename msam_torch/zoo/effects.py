@@ -15,6 +15,10 @@ import numpy as np
 from msam_torch.zoo.system import Effect, power, term_value
 
 OUT_OF_CATALOGUE = ("dead zone", "saturation", "backlash", "hysteresis")
+# The name (a part of it, lower case) a catalogue entry for an input threshold law would carry: a
+# diagnosis may name it once the catalogue holds such an entry; until then the right answer is
+# "gap not explained by a catalogued effect" or "inconclusive" (:func:`~msam_torch.zoo.score.score`)
+EXPECTED_NAMES = {"saturation": "saturation", "dead zone": "dead zone"}
 
 
 @dataclass(frozen=True)
@@ -31,16 +35,16 @@ class DrawnEffect:
 
     def replaces(self, target: str, term: str) -> bool:
         e = self.effect
-        return e.form == "multiplicative" and e.target == target and e.component == term
+        return e.form == "multiplicative" and e.weight(target) != 0 and e.component == term
 
     def contribution(self, target: str, values: dict):
         e = self.effect
-        if e.form not in ("additive", "multiplicative") or e.target != target:
+        if e.form not in ("additive", "multiplicative") or e.weight(target) == 0:
             return 0.0
-        value = power(term_value(e.component, values), values[e.function], self.gamma, self.smooth)
+        value = power(term_value(e.component, values), term_value(e.function, values), self.gamma, self.smooth)
         if e.exchange:  # radiation exchange: c (T|T|^g - Ta|Ta|^g)
             value = value - power(values[e.exchange], values[e.exchange], self.gamma, self.smooth)
-        return self.coefficient * value
+        return e.weight(target) * self.coefficient * value
 
     def shape_input(self, u: np.ndarray) -> np.ndarray:
         """The input the system feels (input nonlinearities only; else ``u`` itself)."""
@@ -62,7 +66,7 @@ class DrawnEffect:
             out.update(target=e.target, component=e.component, function=e.function, exponent=self.gamma,
                        coefficient_si=self.coefficient)
         else:
-            out.update(input=self.input, width_si=self.width)
+            out.update(input=self.input, width_si=self.width, expected_name=EXPECTED_NAMES.get(e.form))
         return out
 
 

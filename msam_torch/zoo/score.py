@@ -5,9 +5,17 @@ zoo case's truth.
   truth's component and function, exponent within :data:`TOLERANCE` of the truth's (additive or
   multiplicative: both are the power law on that component), and no other equation is flagged;
 - null cases: "no significant gap" overall;
-- out-of-catalogue cases: a *confident wrong name* is any "gap explained by" verdict;
+- out-of-catalogue cases: a *confident wrong name* is any "gap explained by" verdict but the
+  truth's ``expected_name`` (the name a catalogue entry for an input saturation or dead zone would
+  carry, :data:`~msam_torch.zoo.effects.EXPECTED_NAMES`) in the truth's equation; the case is
+  *answered right* when it reads neither "no significant gap" nor a confident wrong name, and,
+  once the catalogue holds an entry of its expected name, when it names that entry;
 - every case: a *wrong name* is a "gap explained by" verdict that does not name the truth's
-  effect in the truth's equation (any name on a null or out-of-catalogue case);
+  effect in the truth's equation (any other name on a null or out-of-catalogue case);
+- every case: *no gap beside evidence*, an equation reading "no significant gap" while its own
+  residual checks failed, or rows of it are flagged by a separate fit that removes a relevant
+  share of the squared residual on training and held-out rows (the test of
+  :func:`~msam_torch.diagnosis.stages.localise.located`; not where the residual is negligible);
 - the theta re-fitted starting model: every theta within 3 % of the truth (null cases);
 - held-out free runs: the re-fitted start no worse than the nominal one (1 % slack), and a
   *diverged* run (NRMSE not finite or above :data:`DIVERGED`) beside a verdict that is not
@@ -22,15 +30,17 @@ from __future__ import annotations
 import math
 import re
 
-from msam_torch.diagnosis.catalogue.entries import TOLERANCE  # the exponent tolerance of a right functional form
+from msam_torch.diagnosis.catalogue.entries import TOLERANCE, entries  # TOLERANCE: of a right functional form
 from msam_torch.diagnosis.compare.comparison import (
     DIVERGED,  # the held-out free-run NRMSE beyond which a run has diverged
 )
 from msam_torch.diagnosis.compare.verdict import Verdict, rests_on
+from msam_torch.diagnosis.stages.localise import MIN_EXPLAINED
+from msam_torch.diagnosis.stages.structure import relevant
 
 THETA_TOLERANCE = 0.03
 NO_WORSE_SLACK = 0.01
-_TERM = re.compile(r"([+-])?\s*(\d[\d.]*(?:e[+-]?\d+)?)\s+([^\s+-]\S*)")  # a constant (no term) is skipped
+_TERM = re.compile(r"([+-])?\s*(\d[\d.]*(?:e[+-]?\d+)?)\s+(\([^()]*\)|[^\s+-]\S*)")  # a constant (no term) is skipped
 
 
 def _as_dict(report) -> dict:
@@ -46,12 +56,18 @@ def parse_equation(text: str) -> dict:
     rhs = text.split("=", 1)[1]
     out = {}
     for sign, number, term in _TERM.findall(rhs):
-        out[term] = -float(number) if sign == "-" else float(number)
+        out[_plain(term)] = -float(number) if sign == "-" else float(number)
     return out
 
 
+def _plain(term: str) -> str:
+    """A term as the zoo writes it: ``'(x1 - x2)'`` -> ``'x1 - x2'`` (a difference is printed in parentheses)."""
+    return term[1:-1] if term.startswith("(") and term.endswith(")") else term
+
+
 def _component(hypothesis: str) -> str:
-    return hypothesis.split(" ", 1)[0]
+    """The component of a hypothesis label (``'(x1 - x2) + (x1 - x2)*abs(x1 - x2)^gamma'`` -> ``'x1 - x2'``)."""
+    return _plain(re.split(r" \+ | -> ", hypothesis, maxsplit=1)[0])
 
 
 def effect_matches(gap: dict, truth: dict) -> bool:
@@ -87,10 +103,15 @@ def score(report, truth: dict) -> dict:
                            for t in truth["effects"])
         out["all_found"] = out["found"] == len(truth["effects"])
     else:
-        out["confident_wrong"] = any(explained(g["verdict"]) for g in gaps.values())
+        expected = truth.get("expected_name")
+        named = [t for t, g in gaps.items() if explained(g["verdict"])]
+        out["confident_wrong"] = any(not _names(gaps[t], t, truth, expected) for t in named)
+        out["answered_right"] = (any(_names(gaps[t], t, truth, expected) for t in named) if catalogued(expected)
+                                 else not out["confident_wrong"] and r["verdict"] != Verdict.NO_GAP.text())
     if kind != "several":
-        right = lambda t, g: kind == "catalogued" and t in truth["targets"] and truth["name"].lower() in g["verdict"].lower()
-        out["wrong_name"] = any(explained(g["verdict"]) and not right(t, g) for t, g in gaps.items())
+        name = truth["name"] if kind == "catalogued" else truth.get("expected_name")
+        out["wrong_name"] = any(explained(g["verdict"]) and not _names(g, t, truth, name) for t, g in gaps.items())
+    out["no_gap_beside_evidence"] = sum(no_gap_beside_evidence(g, r.get("options") or {}) for g in gaps.values())
     steps = r.get("in_turn", {}).get("effects", [])
     real = truth.get("effects", [truth] if kind == "catalogued" else [])
     out["spurious"] = sum(not any(step_matches(s, t) and s["target"] == t["target"] for t in real) for s in steps)
@@ -106,6 +127,29 @@ def score(report, truth: dict) -> dict:
                                    and nrmse["retuned"] <= (1 + NO_WORSE_SLACK) * nrmse["start"])
         out["free_run_nrmse"] = nrmse
     return out
+
+
+def _names(gap: dict, target: str, truth: dict, name: str | None) -> bool:
+    """``gap``'s verdict names ``name`` in one of the truth's equations."""
+    return name is not None and target in truth["targets"] and name.lower() in gap["verdict"].lower()
+
+
+def catalogued(name: str | None) -> bool:
+    """Whether the bundled catalogue holds an entry of this name (a part of an entry's name)."""
+    return name is not None and any(name in e.name.lower() for e in entries())
+
+
+def no_gap_beside_evidence(gap: dict, options: dict) -> bool:
+    """``gap`` reads "no significant gap" while its own evidence shows one (see module doc)."""
+    if gap["verdict"] != Verdict.NO_GAP.text():
+        return False
+    checks, where = gap.get("checks") or {}, gap.get("where") or {}
+    shares = [where.get("split_explained"), where.get("held_out_explained")]
+    flagged = bool(where.get("flagged_fraction")) and shares[0] is not None and all(
+        share is None or (share >= MIN_EXPLAINED and relevant(share, where["residual_rms"], where["target_rms"],
+                                                             options["relative"], options["absolute"]))
+        for share in shares)
+    return bool(checks.get("failed")) or (flagged and not checks.get("negligible"))
 
 
 def theta_within(gaps: dict, theta: dict, tolerance: float) -> bool:

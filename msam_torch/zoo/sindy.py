@@ -3,7 +3,8 @@
 Per state equation: the target derivative (``pysindy.SmoothedFiniteDifference`` of the highest
 measured derivative) minus the starting model at its nominal theta is regressed by
 ``pysindy.STLSQ`` on a library holding the true term among many: every starting component, every
-state and input, and for every state ``M`` and state ``f`` the power laws ``M |f|^p``
+state and input, and for every state or difference of states the model reads (``x1 - x2``) ``M``
+and ``f`` the power laws ``M |f|^p``
 (``p`` in :data:`SELF_POWERS` when ``M = f``: sign, square root, |x|x, x^3, |x|^1.5 x, x^4 ...;
 ``p`` in :data:`CROSS_POWERS` otherwise), each named by (component, function, exponent). Columns
 are scaled to unit RMS. The threshold and the ridge weight are chosen on the held-out record: the
@@ -18,6 +19,7 @@ import numpy as np
 
 from msam_torch.model.spec import split_derivative
 from msam_torch.zoo.score import TOLERANCE
+from msam_torch.zoo.system import differences, term_value
 
 SELF_POWERS = (-1.0, -0.5, 0.5, 1.0, 1.5, 2.0, 3.0)
 CROSS_POWERS = (1.0, 2.0)
@@ -53,18 +55,19 @@ def library(config: dict, equation: dict) -> list[tuple[str, str | None, float]]
     model = config["model"]
     linear = {c["term"] for c in equation["components"]} | set(model["states"]) | set(model["inputs"])
     columns = [(m, None, 0.0) for m in sorted(linear)]
-    for m in model["states"]:
-        for f in model["states"]:
+    signals = list(model["states"]) + differences(c["term"] for e in model["equations"] for c in e["components"])
+    for m in signals:  # the states and the differences the model's terms read (x1 - x2)
+        for f in signals:
             columns += [(m, f, p) for p in (SELF_POWERS if m == f else CROSS_POWERS)]
     return columns
 
 
 def _column(signals: dict, term: tuple) -> np.ndarray:
     m, f, p = term
-    value = np.prod([signals[s] for s in m.split("*")], axis=0)
+    value = term_value(m, signals)
     if f is None:
         return value
-    magnitude = np.abs(signals[f])
+    magnitude = np.abs(term_value(f, signals))
     return value * np.where(magnitude > 0, magnitude, np.inf) ** p if p < 0 else value * magnitude**p
 
 
@@ -115,17 +118,20 @@ def run(case) -> dict:
 def score(result: dict, truth: dict) -> dict:
     """Strict top-1 for catalogued cases (the top non-linear term of the truth's equation is the
     true power law within :data:`TOLERANCE`, no other equation selects one); null cases: no
-    non-linear term anywhere; out-of-catalogue cases: no figure."""
+    non-linear term anywhere; every case: a *wrong name*, an equation whose selection is not the
+    truth's law (PySINDy has no "inconclusive": every selection is an answer)."""
     flagged = {target: bool(r["terms"]) for target, r in result.items()}
     out = {"top1": None, "no_gap": None}
+
+    def right(target):
+        terms = result[target]["terms"]
+        if truth["kind"] != "catalogued" or target not in truth["targets"] or not terms:
+            return False
+        top = terms[0]
+        return (top["component"] == truth["component"] and top["function"] == truth["function"]
+                and abs(top["exponent"] - truth["exponent"]) <= TOLERANCE)
+    out["wrong_name"] = any(flag and not right(target) for target, flag in flagged.items())
     if truth["kind"] == "catalogued":
-        def right(target):
-            terms = result[target]["terms"]
-            if not terms:
-                return False
-            top = terms[0]
-            return (top["component"] == truth["component"] and top["function"] == truth["function"]
-                    and abs(top["exponent"] - truth["exponent"]) <= TOLERANCE)
         out["top1"] = (all(right(t) for t in truth["targets"])
                        and not any(v for t, v in flagged.items() if t not in truth["targets"]))
     elif truth["kind"] == "null":

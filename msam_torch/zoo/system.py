@@ -14,12 +14,30 @@ import numpy as np
 from msam_torch.model.spec import split_derivative
 
 
+def factors(term: str) -> list[tuple[str, ...]]:
+    """The factors of ``term``, each the signals it reads: ``'prey*pred'`` -> ``[('prey',), ('pred',)]``;
+    a difference of two signals of one quantity (``'x1 - x2'``: a spring between two bodies) is one
+    factor ``('x1', 'x2')``; ``'1'`` is a constant (no factor)."""
+    return [tuple(s.strip() for s in f.split(" - ")) for f in term.split("*") if f != "1"]
+
+
 def term_value(term: str, values: dict) -> np.ndarray:
-    """``M``: the product of the signals named in ``term`` (``'prey*pred'``; ``'1'`` is a constant)."""
+    """``M``: the product of the factors of ``term`` (:func:`factors`)."""
     out = 1.0
-    for name in term.split("*"):
-        out = out * (1.0 if name == "1" else values[name])
+    for names in factors(term):
+        out = out * (values[names[0]] - values[names[1]] if len(names) == 2 else values[names[0]])
     return out
+
+
+def term_scale(term: str, scale: dict) -> float:
+    """The unit factor of ``term`` from its signals' (a difference shares its signals' unit)."""
+    return float(np.prod([scale[names[0]] for names in factors(term)]))
+
+
+def differences(terms) -> list[str]:
+    """The differences of two signals among the factors of ``terms``, in order of appearance."""
+    found = [" - ".join(names) for term in terms for names in factors(term) if len(names) == 2]
+    return list(dict.fromkeys(found))
 
 
 def power(m: np.ndarray, f: np.ndarray, gamma: float, smooth: float) -> np.ndarray:
@@ -60,6 +78,16 @@ class Effect:
     sign: float = -1.0  # sign of c (dissipative effects oppose the motion)
     catalogued: bool = True
     exchange: str = ""  # a signal whose same power is subtracted (radiation exchange with the ambient)
+    also: tuple[tuple[str, float], ...] = ()  # further targets, each with its coefficient relative to
+    # ``target``'s: an effect between two bodies or tanks acts on both (the reaction, the flow into the other)
+
+    @property
+    def targets(self) -> tuple[str, ...]:
+        return (self.target, *(t for t, _ in self.also))
+
+    def weight(self, target: str) -> float:
+        """The effect's coefficient in ``target``'s equation relative to ``self.target``'s (0: absent)."""
+        return 1.0 if target == self.target else dict(self.also).get(target, 0.0)
 
 
 @dataclass(frozen=True)
