@@ -221,22 +221,42 @@ def _tangents(model: SystemModel, p: Parameters, record: Record, x0: torch.Tenso
     basis = torch.eye(s, dtype=grid.dtype, device=grid.device)
     jacobian = _one_step(model, a_params, _rows(record, first, s), tableau, h, guarded, grid[:, :-1].repeat_interleave(s, 0),
                          lambda n: basis.view(1, s, 1, s).expand(u, s, n, s).flatten(0, 1))
-    jacobian = jacobian.unflatten(0, (u, s)).permute(0, 2, 3, 1)[inverse]  # (B, steps, S out, S in)
-    # b_n: every row with its parameters' tangent, the state's zero
-    own = lambda v: v if v.dtype == torch.long or _tangent(v) is not None else constant(v)
-    b_params = Parameters(*(own(getattr(p, f.name)) for f in fields(p)))
-    forcing = _one_step(model, b_params, record, tableau, h, guarded, grid[inverse, :-1],
-                        lambda n: torch.zeros(b, n, s, dtype=grid.dtype, device=grid.device))  # (B, steps, S)
-    shift = 1
-    while shift < steps:  # prefix compositions of the steps' affine maps (a Hillis-Steele scan): step k from the start
-        jacobian, forcing = (torch.cat([jacobian[:, :shift], jacobian[:, shift:] @ jacobian[:, :-shift]], 1),
-                             torch.cat([forcing[:, :shift], (jacobian[:, shift:] @ forcing[:, :-shift].unsqueeze(-1)).squeeze(-1)
-                                        + forcing[:, shift:]], 1))
-        shift *= 2
+    jacobian = jacobian.unflatten(0, (u, s)).permute(0, 2, 3, 1)  # (U, steps, S out, S in)
     start = _tangent(x0)
     start = torch.zeros(b, s, dtype=grid.dtype, device=grid.device) if start is None else start.expand(b, s)
-    moved = (jacobian @ start.view(b, 1, s, 1)).squeeze(-1) + forcing  # (B, steps, S)
-    return torch.cat([start.unsqueeze(1), moved], 1)
+    # b_n: the rows whose parameters have a tangent (zero for the others), the state's zero
+    moving = torch.zeros(b, dtype=torch.bool, device=grid.device)
+    for f in fields(p):
+        tangent = _tangent(getattr(p, f.name))
+        if tangent is not None:
+            moving |= (tangent != 0).flatten(1).any(-1).expand(b)
+    live = torch.nonzero(moving | (start != 0).any(-1)).flatten()  # the others' tangent is zero throughout
+    tangents = torch.zeros(b, steps + 1, s, dtype=grid.dtype, device=grid.device)
+    tangents[:, 0] = start
+    if not live.numel():
+        return tangents
+    forcing = torch.zeros(live.shape[0], steps, s, dtype=grid.dtype, device=grid.device)
+    forced = torch.nonzero(moving[live]).flatten()
+    if forced.numel():
+        rows = live[forced]
+        own = lambda v: v if v.dtype == torch.long or _tangent(v) is not None else constant(v)
+        b_params = Parameters(*(own(getattr(p, f.name).expand(b, -1))[rows] for f in fields(p)))
+        forcing[forced] = _one_step(model, b_params, _rows(record, rows), tableau, h, guarded, grid[inverse[rows], :-1],
+                                    lambda n: torch.zeros(rows.shape[0], n, s, dtype=grid.dtype, device=grid.device))
+    jacobian, start = jacobian[inverse[live]], start[live]
+    shift = 1
+    while shift < steps:  # prefix compositions of the steps' affine maps (a Hillis-Steele scan): step k from the start
+        jacobian, forcing = (torch.cat([jacobian[:, :shift], _product(jacobian[:, shift:], jacobian[:, :-shift])], 1),
+                             torch.cat([forcing[:, :shift], _product(jacobian[:, shift:], forcing[:, :-shift].unsqueeze(-1))
+                                        .squeeze(-1) + forcing[:, shift:]], 1))
+        shift *= 2
+    tangents[live, 1:] = _product(jacobian, start.view(-1, 1, s, 1)).squeeze(-1) + forcing  # (live, steps, S)
+    return tangents
+
+
+def _product(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """``a @ b``; of 1 x 1 matrices elementwise (the same numbers, a tenth of the time)."""
+    return a * b if a.shape[-1] == 1 and a.shape[-2] == 1 else a @ b
 
 
 def _one_step(model: SystemModel, p: Parameters, record: Record, tableau, h, guarded, x: torch.Tensor,
