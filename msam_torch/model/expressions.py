@@ -12,6 +12,7 @@ import ast
 import math
 import warnings
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Callable, Mapping
 
 import torch
@@ -56,7 +57,7 @@ class Expression:
         non-finite number (tensors over data are checked where the data are, see data.py)."""
         values = {**dict(self.constants), **values} if self.constants else values
         try:
-            value = _evaluate(self.tree, values)
+            value = self._evaluate(values)
         except ArithmeticError as exc:
             reason = {ZeroDivisionError: "division by zero", OverflowError: "overflow beyond float64"}.get(type(exc), exc)
             raise ConfigError(self.key, f"{self.text!r}{self._with(values)} cannot be evaluated: {reason}") from None
@@ -64,6 +65,13 @@ class Expression:
             if not math.isfinite(float(value)):
                 raise ConfigError(self.key, f"{self.text!r}{self._with(values)} is {float(value)}, not a finite number")
         return value
+
+    @cached_property
+    def _evaluate(self) -> Callable:
+        """The tree as nested closures, built once: the operations of interpreting it node by node,
+        in the same order, without the interpretation (a simulation evaluates an expression at
+        every stage)."""
+        return _compile(self.tree)
 
     def _with(self, values) -> str:
         """`` with m = 0`` for the scalar values the expression read."""
@@ -141,20 +149,28 @@ def _check(node, key, text, allowed, names, depth=0):
         raise ConfigError(key, f"{type(node).__name__} is not allowed in {text!r}")
 
 
-def _evaluate(node, values):
+def _compile(node) -> Callable:
     if isinstance(node, ast.Constant):
-        return float(node.value)
+        number = float(node.value)
+        return lambda values: number
     if isinstance(node, ast.Name):
-        return values[node.id]
+        name = node.id
+        return lambda values: values[name]
     if isinstance(node, ast.BinOp):
-        value = _BINARY[type(node.op)](_evaluate(node.left, values), _evaluate(node.right, values))
-        if isinstance(value, complex):
-            raise ArithmeticError("a complex value")
-        return value
+        operation, left, right = _BINARY[type(node.op)], _compile(node.left), _compile(node.right)
+
+        def binary(values):
+            value = operation(left(values), right(values))
+            if isinstance(value, complex):
+                raise ArithmeticError("a complex value")  # noqa: TRY004 (reported by Expression.__call__)
+            return value
+        return binary
     if isinstance(node, ast.UnaryOp):
-        value = _evaluate(node.operand, values)
-        return -value if isinstance(node.op, ast.USub) else value
-    argument = _evaluate(node.args[0], values)
-    if not torch.is_tensor(argument):
-        argument = torch.tensor(argument, dtype=torch.float64)
-    return FUNCTIONS[node.func.id](argument)
+        operand = _compile(node.operand)
+        return (lambda values: -operand(values)) if isinstance(node.op, ast.USub) else operand
+    function, argument = FUNCTIONS[node.func.id], _compile(node.args[0])
+
+    def call(values):
+        value = argument(values)
+        return function(value if torch.is_tensor(value) else torch.tensor(value, dtype=torch.float64))
+    return call

@@ -46,7 +46,8 @@ class SimulationEvaluator:
         if self._moved is not None and self._moved[0] is state:
             return self._moved[1]
         initial = _initial(selection, state)
-        yhat = selection.data.output(state.gamma, selection.choice(state), state.theta, state.theta_fixed, initial)
+        yhat = selection.data.output(state.gamma, selection.choice(state), state.theta, state.theta_fixed, initial,
+                                     _probe(selection.data, options))
         return _evaluation(selection, state, yhat, initial)
 
     def step(self, selection: SimulationSelection, state: State, current: Evaluation, options: StepOptions,
@@ -72,7 +73,8 @@ class SimulationEvaluator:
         delta = lstsq(phi, eps, options.damping, options.rcond)
         delta_gamma, delta_z = delta[..., :q], torch.zeros_like(z)
         delta_z[..., free] = delta[..., q:]
-        line = LineSearch(selection, state, z, delta_gamma, delta_z, getattr(options.step_size, "steps", ()))
+        line = LineSearch(selection, state, z, delta_gamma, delta_z, getattr(options.step_size, "steps", ()),
+                          _probe(data, options))
         mu = step_size(current.fitness, (phi @ delta.unsqueeze(-1)).squeeze(-1), eps, options, line.fitness)
         gamma, diverged = advance(state.gamma, mu, delta_gamma, state.diverged, current.fitness, options)
         new_z = torch.where(diverged.unsqueeze(-1), z, z + mu.unsqueeze(-1) * delta_z)
@@ -94,6 +96,13 @@ class SimulationEvaluator:
         return measures(data.y, yhat)
 
 
+def _probe(data: SimulationData, options: StepOptions) -> float:
+    """The exponent shift whose rows an evaluation integrates with its own for the next step's
+    structural sensitivities (Eq. 16): ``dgamma``, unless theta and the initial states are
+    refitted first (the step then starts elsewhere)."""
+    return 0.0 if data.refit_steps else options.dgamma
+
+
 def _evaluation(selection: SimulationSelection, state: State, yhat: torch.Tensor, initial: torch.Tensor) -> Evaluation:
     y = selection.y
     score = torch.where(state.diverged, torch.full_like(state.diverged, -torch.inf, dtype=yhat.dtype), fitness(y, yhat))
@@ -105,11 +114,11 @@ class LineSearch:
     """``fitness(mu, among)`` of the step rule: the fitness (T, C) of every candidate moved by
     ``mu``. The first call simulates that step size and every smaller one of the backtracking
     ladder (the step rule's ``steps``) in one batch; the later calls read them (``outputs``: mu ->
-    simulated outputs)."""
+    simulated outputs). ``probe``: see :meth:`SimulationData.output`."""
 
-    def __init__(self, selection: SimulationSelection, state: State, z, delta_gamma, delta_z, ladder=()):
+    def __init__(self, selection: SimulationSelection, state: State, z, delta_gamma, delta_z, ladder=(), probe=0.0):
         self.selection, self.state, self.z, self.delta_gamma, self.delta_z = selection, state, z, delta_gamma, delta_z
-        self.ladder = tuple(ladder)
+        self.ladder, self.probe = tuple(ladder), probe
         self.outputs: dict[float, torch.Tensor] = {}
         self.known: dict[float, torch.Tensor] = {}
 
@@ -122,7 +131,7 @@ class LineSearch:
             gamma = state.gamma.unsqueeze(-2) + scale * self.delta_gamma.unsqueeze(-2)  # (T, C, L, Qa)
             moved = z.unsqueeze(-2) + scale * self.delta_z.unsqueeze(-2)
             choice = self.selection.choice(state).unsqueeze(-2).expand(gamma.shape)
-            out = self.selection.data.output(gamma, choice, *unpacked(moved, q, p))
+            out = self.selection.data.output(gamma, choice, *unpacked(moved, q, p), self.probe)
             values = fitness(self.selection.y.unsqueeze(-2), out)  # (T, C, L)
             self.known.update({m: values[..., k] for k, m in enumerate(mus)})
             self.outputs.update({m: out[..., k, :] for k, m in enumerate(mus)})

@@ -201,7 +201,9 @@ class _Eq9:
             return matrix
 
         self.assign_adjustable, self.assign_fixed = assign(model.adjustable), assign(model.fixed)
-        self.source = torch.tensor(model.source, device=device) if kinematic else None  # from cat(states, equations)
+        s = len(model.states)  # the rates from cat(states, equations), or the equations' alone when they give every state's
+        self.source = None if not kinematic or model.source == tuple(range(s, s + len(model.equations))) \
+            else torch.tensor(model.source, device=device)
         self.bound: dict = {}
 
     def constants(self, shape):

@@ -7,11 +7,12 @@ simulated states, ``Qa`` adjustable and ``P`` fixed components, ``G`` adjustment
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
 from msam_torch.engine.values import State
+from msam_torch.simulation.grids import Grids
 from msam_torch.simulation.ode import Parameters, SystemModel
 from msam_torch.simulation.record import Record
 from msam_torch.simulation.solver import simulate
@@ -32,6 +33,7 @@ class SimulationData:
     substeps: int = 1
     refit_steps: int = 0  # Levenberg-Marquardt steps on theta and initial states before every exponent step
     limits: torch.Tensor | None = None  # (2, S) range of the simulated states (``simulation.saturation``)
+    grids: Grids = field(default_factory=Grids, compare=False, repr=False)  # rows already integrated (:mod:`.grids`)
 
     @property
     def y(self) -> torch.Tensor:
@@ -41,14 +43,23 @@ class SimulationData:
     def select(self, choices: torch.Tensor) -> "SimulationSelection":
         return SimulationSelection(self, choices)
 
-    def output(self, gamma, choice, theta, theta_fixed, initial) -> torch.Tensor:
-        """Simulated outputs for any leading batch shape (T, ...): (T, ..., O N)."""
+    def output(self, gamma, choice, theta, theta_fixed, initial, probe: float = 0.0) -> torch.Tensor:
+        """Simulated outputs for any leading batch shape (T, ...): (T, ..., O N). With ``probe``,
+        the rows at ``gamma + probe e_i`` (Eq. 16's shifted exponents) are integrated in the same
+        batch and kept in :attr:`grids`, where a step from these points reads its plain runs."""
         batch = gamma.shape[:-1]
+        if probe:
+            q = gamma.shape[-1]
+            shifted = gamma.unsqueeze(-2) + probe * torch.eye(q, dtype=gamma.dtype, device=gamma.device)  # (..., Qa, Qa)
+            along = lambda v: v.expand(batch + v.shape[-1:]).unsqueeze(-2).expand(batch + (q + 1,) + v.shape[-1:])
+            rows = [along(v) for v in (choice, theta, theta_fixed, initial)]
+            return self.output(torch.cat([gamma.unsqueeze(-2), shifted], -2), *rows)[..., 0, :]
         flat = lambda v: v.expand(batch + v.shape[-1:]).flatten(0, len(batch) - 1)
         t = self.scale.shape[0]
         scale = self.scale.view((t,) + (1,) * (len(batch) - 1) + self.scale.shape[-1:]) if len(batch) > 1 else self.scale
         p = Parameters(flat(gamma), flat(choice), flat(theta), flat(theta_fixed), flat(scale))
-        states = simulate(self.model, self.record, p, flat(initial), self.method, self.substeps, self.limits)
+        states = simulate(self.model, self.record, p, flat(initial), self.method, self.substeps, self.limits,
+                          grids=self.grids)
         if self.limits is not None:  # a fixed step may overshoot a limit by a fraction of a step
             states = torch.clamp(states, self.limits[0], self.limits[1])
         out = states[..., list(self.outputs)].movedim(-1, -2).reshape(states.shape[0], -1)
