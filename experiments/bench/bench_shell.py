@@ -1,6 +1,6 @@
 """A diagnosis from the shell, end to end, beside ``import torch``: the wall time a user waits.
 
-    python -m experiments.bench.bench_shell [--repeats 5] [--profile FILE]
+    python -m experiments.bench.bench_shell [--repeats 5] [--profile FILE] [--baseline DIR]
 
 Cases, each a fresh process with the report written (figures included), the commands interleaved
 so that a change in the machine's load hits them alike:
@@ -15,7 +15,9 @@ so that a change in the machine's load hits them alike:
 Printed: the median wall time of each and its ratio to ``python -c "import torch"`` of the same
 run, and the diagnosis's own time in-process (``GapReport.seconds``, the median of ``--repeats``
 runs in this process after one warm-up). ``--profile FILE`` also writes a cProfile of one
-pendulum diagnosis from the shell (read it with ``python -m pstats FILE``).
+pendulum diagnosis from the shell (read it with ``python -m pstats FILE``). ``--baseline DIR`` times
+the warm-cache commands a second time with the package of another checkout (``DIR``, a worktree of
+main, say) on the path, interleaved with the rest, each marked "(baseline)".
 """
 from __future__ import annotations
 
@@ -70,9 +72,9 @@ def pendulum_record(folder: Path, samples: int = 4000, noise: float = 0.01, seed
     return folder / "pendulum.yaml"
 
 
-def wall_time(command: list[str], env: dict) -> float:
+def wall_time(command: list[str], env: dict, cwd: Path = ROOT) -> float:
     start = time.perf_counter()
-    subprocess.run(command, cwd=ROOT, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    subprocess.run(command, cwd=cwd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
     return time.perf_counter() - start
 
 
@@ -88,6 +90,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeats", type=int, default=5, help="runs of each command (median printed)")
     parser.add_argument("--profile", type=Path, help="write a cProfile of one pendulum diagnosis here")
+    parser.add_argument("--baseline", type=Path, help="a checkout whose msam_torch is timed beside this one")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(scratch)
@@ -99,13 +102,20 @@ def main() -> int:
             "pendulum, 4,000 samples (CSV)": (msam + [str(pendulum), "--out", str(folder / "p")], env),
             "README example (warm cache)": (msam + ["configs/msd_coulomb.yaml", "--out", str(folder / "w")], env),
         }
+        if args.baseline:  # run in its folder: python -m puts the working folder first on the path
+            base = args.baseline.resolve()
+            other = {**env, "PYTHONPATH": str(base)}
+            timed["pendulum, 4,000 samples (CSV) (baseline)"] = (msam + [str(pendulum), "--out", str(folder / "pb")],
+                                                                 other, base)
+            timed["README example (warm cache) (baseline)"] = (
+                msam + ["configs/msd_coulomb.yaml", "--out", str(folder / "wb")], other, base)
         cold = lambda i: {**env, "MSAM_CACHE_DIR": str(folder / f"cold{i}")}
         times: dict[str, list[float]] = {name: [] for name in [*timed, "README example (cold cache)"]}
-        for command, command_env in timed.values():  # one untimed run each: file-system caches warm
-            wall_time(command, command_env)
+        for command, *where in timed.values():  # one untimed run each: file-system caches warm
+            wall_time(command, *where)
         for i in range(args.repeats):
-            for name, (command, command_env) in timed.items():
-                times[name].append(wall_time(command, command_env))
+            for name, (command, *where) in timed.items():
+                times[name].append(wall_time(command, *where))
             times["README example (cold cache)"].append(wall_time(timed["README example (warm cache)"][0], cold(i)))
         if args.profile:
             subprocess.run([sys.executable, "-m", "cProfile", "-o", str(args.profile), *msam[1:], str(pendulum),
