@@ -13,8 +13,9 @@ so that a change in the machine's load hits them alike:
   start (warm: its cached simulation reused; cold: an empty cache folder each run).
 
 Printed: the median wall time of each and its ratio to ``python -c "import torch"`` of the same
-run, and the diagnosis's own time in-process (``GapReport.seconds``, the median of ``--repeats``
-runs in this process after one warm-up). ``--profile FILE`` also writes a cProfile of one
+run, the same for the CPU time its process used (less sensitive to other jobs on the machine),
+and the diagnosis's own time in-process (``GapReport.seconds``, the median of ``--repeats`` runs in
+this process after one warm-up). ``--profile FILE`` also writes a cProfile of one
 pendulum diagnosis from the shell (read it with ``python -m pstats FILE``). ``--baseline DIR`` times
 the warm-cache commands a second time with the package of another checkout (``DIR``, a worktree of
 main, say) on the path, interleaved with the rest, each marked "(baseline)".
@@ -23,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -72,10 +74,16 @@ def pendulum_record(folder: Path, samples: int = 4000, noise: float = 0.01, seed
     return folder / "pendulum.yaml"
 
 
-def wall_time(command: list[str], env: dict, cwd: Path = ROOT) -> float:
-    start = time.perf_counter()
+def wall_time(command: list[str], env: dict, cwd: Path = ROOT) -> tuple[float, float]:
+    """The wall time of ``command`` and the CPU time (user and system) its process used."""
+    start, cpu = time.perf_counter(), _children_cpu()
     subprocess.run(command, cwd=cwd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
-    return time.perf_counter() - start
+    return time.perf_counter() - start, _children_cpu() - cpu
+
+
+def _children_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def in_process(config: Path, repeats: int) -> tuple[float, str]:
@@ -110,7 +118,7 @@ def main() -> int:
             timed["README example (warm cache) (baseline)"] = (
                 msam + ["configs/msd_coulomb.yaml", "--out", str(folder / "wb")], other, base)
         cold = lambda i: {**env, "MSAM_CACHE_DIR": str(folder / f"cold{i}")}
-        times: dict[str, list[float]] = {name: [] for name in [*timed, "README example (cold cache)"]}
+        times: dict[str, list[tuple[float, float]]] = {name: [] for name in [*timed, "README example (cold cache)"]}
         for command, *where in timed.values():  # one untimed run each: file-system caches warm
             wall_time(command, *where)
         for i in range(args.repeats):
@@ -123,12 +131,13 @@ def main() -> int:
                            env=env)
         os.environ["MSAM_CACHE_DIR"] = env["MSAM_CACHE_DIR"]
         seconds, verdict = in_process(pendulum, args.repeats)
-    torch_median = statistics.median(times['python -c "import torch"'])
+    median = lambda name, k: statistics.median(run[k] for run in times[name])
+    torch_wall, torch_cpu = (median('python -c "import torch"', k) for k in (0, 1))
     print(f"median wall time of {args.repeats} runs each, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}")
-    print("| command | median s | min s | vs import torch |\n|---|---|---|---|")
-    for name, values in times.items():
-        print(f"| {name} | {statistics.median(values):.2f} | {min(values):.2f} | "
-              f"{statistics.median(values) / torch_median:.2f}x |")
+    print("| command | median s | min s | vs import torch | CPU s | CPU vs import torch |\n|---|---|---|---|---|---|")
+    for name, runs in times.items():
+        print(f"| {name} | {median(name, 0):.2f} | {min(run[0] for run in runs):.2f} | {median(name, 0) / torch_wall:.2f}x "
+              f"| {median(name, 1):.2f} | {median(name, 1) / torch_cpu:.2f}x |")
     print(f"pendulum diagnosis in-process (GapReport.seconds, median of {args.repeats}): {seconds:.3f} s; "
           f"verdict: {verdict}")
     return 0
