@@ -1,6 +1,6 @@
 """A diagnosis from the shell, end to end, beside ``import torch``: the wall time a user waits.
 
-    python -m experiments.bench.bench_shell [--repeats 5] [--profile FILE]
+    python -m experiments.bench.bench_shell [--repeats 5] [--profile FILE] [--baseline DIR]
 
 Cases, each a fresh process with the report written (figures included), the commands interleaved
 so that a change in the machine's load hits them alike:
@@ -13,14 +13,18 @@ so that a change in the machine's load hits them alike:
   start (warm: its cached simulation reused; cold: an empty cache folder each run).
 
 Printed: the median wall time of each and its ratio to ``python -c "import torch"`` of the same
-run, and the diagnosis's own time in-process (``GapReport.seconds``, the median of ``--repeats``
-runs in this process after one warm-up). ``--profile FILE`` also writes a cProfile of one
-pendulum diagnosis from the shell (read it with ``python -m pstats FILE``).
+run, the same for the CPU time its process used (less sensitive to other jobs on the machine),
+and the diagnosis's own time in-process (``GapReport.seconds``, the median of ``--repeats`` runs in
+this process after one warm-up). ``--profile FILE`` also writes a cProfile of one
+pendulum diagnosis from the shell (read it with ``python -m pstats FILE``). ``--baseline DIR`` times
+the warm-cache commands a second time with the package of another checkout (``DIR``, a worktree of
+main, say) on the path, interleaved with the rest, each marked "(baseline)".
 """
 from __future__ import annotations
 
 import argparse
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -70,10 +74,16 @@ def pendulum_record(folder: Path, samples: int = 4000, noise: float = 0.01, seed
     return folder / "pendulum.yaml"
 
 
-def wall_time(command: list[str], env: dict) -> float:
-    start = time.perf_counter()
-    subprocess.run(command, cwd=ROOT, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
-    return time.perf_counter() - start
+def wall_time(command: list[str], env: dict, cwd: Path = ROOT) -> tuple[float, float]:
+    """The wall time of ``command`` and the CPU time (user and system) its process used."""
+    start, cpu = time.perf_counter(), _children_cpu()
+    subprocess.run(command, cwd=cwd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    return time.perf_counter() - start, _children_cpu() - cpu
+
+
+def _children_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def in_process(config: Path, repeats: int) -> tuple[float, str]:
@@ -88,6 +98,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeats", type=int, default=5, help="runs of each command (median printed)")
     parser.add_argument("--profile", type=Path, help="write a cProfile of one pendulum diagnosis here")
+    parser.add_argument("--baseline", type=Path, help="a checkout whose msam_torch is timed beside this one")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(scratch)
@@ -99,13 +110,20 @@ def main() -> int:
             "pendulum, 4,000 samples (CSV)": (msam + [str(pendulum), "--out", str(folder / "p")], env),
             "README example (warm cache)": (msam + ["configs/msd_coulomb.yaml", "--out", str(folder / "w")], env),
         }
+        if args.baseline:  # run in its folder: python -m puts the working folder first on the path
+            base = args.baseline.resolve()
+            other = {**env, "PYTHONPATH": str(base)}
+            timed["pendulum, 4,000 samples (CSV) (baseline)"] = (msam + [str(pendulum), "--out", str(folder / "pb")],
+                                                                 other, base)
+            timed["README example (warm cache) (baseline)"] = (
+                msam + ["configs/msd_coulomb.yaml", "--out", str(folder / "wb")], other, base)
         cold = lambda i: {**env, "MSAM_CACHE_DIR": str(folder / f"cold{i}")}
-        times: dict[str, list[float]] = {name: [] for name in [*timed, "README example (cold cache)"]}
-        for command, command_env in timed.values():  # one untimed run each: file-system caches warm
-            wall_time(command, command_env)
+        times: dict[str, list[tuple[float, float]]] = {name: [] for name in [*timed, "README example (cold cache)"]}
+        for command, *where in timed.values():  # one untimed run each: file-system caches warm
+            wall_time(command, *where)
         for i in range(args.repeats):
-            for name, (command, command_env) in timed.items():
-                times[name].append(wall_time(command, command_env))
+            for name, (command, *where) in timed.items():
+                times[name].append(wall_time(command, *where))
             times["README example (cold cache)"].append(wall_time(timed["README example (warm cache)"][0], cold(i)))
         if args.profile:
             subprocess.run([sys.executable, "-m", "cProfile", "-o", str(args.profile), *msam[1:], str(pendulum),
@@ -113,12 +131,13 @@ def main() -> int:
                            env=env)
         os.environ["MSAM_CACHE_DIR"] = env["MSAM_CACHE_DIR"]
         seconds, verdict = in_process(pendulum, args.repeats)
-    torch_median = statistics.median(times['python -c "import torch"'])
+    median = lambda name, k: statistics.median(run[k] for run in times[name])
+    torch_wall, torch_cpu = (median('python -c "import torch"', k) for k in (0, 1))
     print(f"median wall time of {args.repeats} runs each, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}")
-    print("| command | median s | min s | vs import torch |\n|---|---|---|---|")
-    for name, values in times.items():
-        print(f"| {name} | {statistics.median(values):.2f} | {min(values):.2f} | "
-              f"{statistics.median(values) / torch_median:.2f}x |")
+    print("| command | median s | min s | vs import torch | CPU s | CPU vs import torch |\n|---|---|---|---|---|---|")
+    for name, runs in times.items():
+        print(f"| {name} | {median(name, 0):.2f} | {min(run[0] for run in runs):.2f} | {median(name, 0) / torch_wall:.2f}x "
+              f"| {median(name, 1):.2f} | {median(name, 1) / torch_cpu:.2f}x |")
     print(f"pendulum diagnosis in-process (GapReport.seconds, median of {args.repeats}): {seconds:.3f} s; "
           f"verdict: {verdict}")
     return 0

@@ -13,10 +13,9 @@ from __future__ import annotations
 from typing import Mapping
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
-from scipy.signal import firwin, resample_poly
 
 from msam_torch.data.derivatives import BAND, noise_level, periodogram
+from msam_torch.data.filters import lowpass, resample
 
 POWER_SHARE = 0.99  # share of a signal's power above the noise floor that lies in the band
 RESOLVED = 100  # samples per period of the band edge an oversampled record keeps
@@ -30,21 +29,27 @@ def band_edge(y: np.ndarray) -> float:
     peak = np.abs(y).max()
     y = y / peak if 0 < peak < np.inf else y
     freq, power, floor = periodogram(y, noise_level(y))
-    signal = np.clip(uniform_filter1d(power, size=min(BAND, power.size), mode="nearest") - floor, 0.0, None)
+    signal = np.clip(moving_average(power, min(BAND, power.size)) - floor, 0.0, None)
     total = np.cumsum(signal)
     if total[-1] <= 0:
         return 0.5
     return float(freq[np.searchsorted(total, POWER_SHARE * total[-1])])
 
 
+def moving_average(y: np.ndarray, size: int) -> np.ndarray:
+    """The mean of the ``size`` samples around each sample of ``y`` (the edge samples repeated
+    beyond the ends; ``scipy.ndimage.uniform_filter1d(mode='nearest')``)."""
+    padded = np.pad(y, (size // 2, (size - 1) // 2), mode="edge")
+    return np.convolve(padded, np.full(size, 1.0 / size), mode="valid")
+
+
 def decimate(values: np.ndarray, every: int) -> np.ndarray:
     """Every ``every``-th sample of ``values`` after a zero-phase FIR low-pass at the new Nyquist
-    frequency (the filter of ``scipy.signal.decimate``); the ends are extended along a fitted line
-    (``resample_poly(padtype='line')``), so the first and last samples keep their level."""
+    frequency (the filter of ``scipy.signal.decimate``); the ends are extended along the line through
+    the first and last samples (:func:`~msam_torch.data.filters.resample`), so they keep their level."""
     if every == 1:
         return values
-    taps = firwin(TAPS_PER_FACTOR * every + 1, 1.0 / every, window="hamming")
-    return resample_poly(values, 1, every, window=taps, padtype="line")
+    return resample(values, 1, every, lowpass(TAPS_PER_FACTOR * every + 1, 1.0 / every))
 
 
 def oversampling(signals: Mapping[str, np.ndarray]) -> tuple[int, float]:

@@ -8,14 +8,14 @@ Python, is one (``SavitzkyGolay(window=15)``). ``data.window`` and ``data.cutoff
 for a noise-free simulated system, else ``savgol``) are registered.
 
 Estimators (all return the smoothed signal and its first ``order`` derivatives):
-- ``savgol``: Savitzky-Golay, local cubic (``scipy.signal.savgol_filter``), the default;
+- ``savgol``: Savitzky-Golay, local cubic (``scipy.signal.savgol_filter``'s, :mod:`~msam_torch.data.filters`), the default;
 - ``spline``: penalised cubic smoothing spline, penalty by generalised cross-validation
   (``scipy.interpolate.make_smoothing_spline``);
 - ``loess``: locally weighted linear regression (statsmodels ``lowess``, the paper's choice), then
   a cubic interpolating spline for the derivatives;
 - ``finite_difference``: no smoothing, second-order central differences (``numpy.gradient``);
 - ``butterworth``: zero-phase low-pass Butterworth filter of order 4 run forwards and backwards
-  (``scipy.signal.butter`` + ``sosfiltfilt``), then second-order central differences of the filtered
+  (``scipy.signal.butter`` + ``sosfiltfilt``'s, :mod:`~msam_torch.data.filters`), then second-order central differences of the filtered
   signal: the filtering chain of inverse-dynamics identification (IDIM-LS) of mechanical systems.
   The cut-off is ``data.cutoff`` (cycles per time unit, Hz for seconds) or the noise-floor rule below.
 - ``interpolating_spline``: no smoothing, a quintic interpolating spline
@@ -53,6 +53,7 @@ from typing import ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 from msam_torch.config.registry import Registry
+from msam_torch.data.filters import butterworth, savgol, zero_phase
 from msam_torch.errors import DataError
 
 SAVGOL_DEGREE = 3  # local cubic: unbiased for the first two derivatives of a cubic
@@ -295,13 +296,10 @@ class SavitzkyGolay(Smoother):
     window: int | None = None
 
     def _estimate(self, t, y, order, where, info):
-        from scipy.signal import savgol_filter
-
         degree = max(SAVGOL_DEGREE, order)
         window, info = _local_window(self.name, y, degree, self.window, where, info, odd=True)
         dt = float(np.median(np.diff(t)))
-        return Estimate([savgol_filter(y, window, degree, deriv=k, delta=dt, mode="interp") for k in range(order + 1)],
-                        info)
+        return Estimate([savgol(y, window, degree, k, dt) for k in range(order + 1)], info)
 
 
 @dataclass(frozen=True)
@@ -379,8 +377,6 @@ def estimate(t: np.ndarray, y: np.ndarray, order: int, method: str | DerivativeE
 def _butterworth(t: np.ndarray, y: np.ndarray, cutoff: float | None, name: str, info: dict) -> tuple[np.ndarray, dict]:
     """Zero-phase Butterworth low-pass of ``y`` at ``cutoff`` (cycles per time unit; default the
     noise-floor frequency of :func:`cutoff_frequency`)."""
-    from scipy.signal import butter, sosfiltfilt
-
     dt = float(np.median(np.diff(t)))
     rule = "given"
     if cutoff is None:
@@ -391,10 +387,10 @@ def _butterworth(t: np.ndarray, y: np.ndarray, cutoff: float | None, name: str, 
         if not 0 < per_sample < 0.5:
             raise DataError(f"{name}: data.cutoff={cutoff:g} must lie between 0 and the Nyquist frequency "
                             f"{0.5 / dt:.6g} (cycles per time unit)")
-    sos = butter(BUTTERWORTH_ORDER, 2.0 * per_sample, output="sos")
+    sos = butterworth(BUTTERWORTH_ORDER, 2.0 * per_sample)
     # odd extension over ~3 periods at the cut-off, never shorter than scipy's default (27 samples for
     # this order), which alone leaves the start-up transient of a low cut-off in the edge derivatives
     padding = min(max(int(np.ceil(3.0 / per_sample)), 3 * (2 * len(sos) + 1)), y.size - 1)
     info = {**info, "cutoff": per_sample / dt, "cutoff_per_sample": per_sample, "window_rule": rule,
             "filter_order": BUTTERWORTH_ORDER, "zero_phase": True}
-    return np.ascontiguousarray(sosfiltfilt(sos, y, padlen=padding)), info
+    return zero_phase(sos, y, padding), info

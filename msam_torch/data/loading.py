@@ -14,10 +14,9 @@ import difflib
 import functools
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Union
+from typing import TYPE_CHECKING, Mapping, Union
 
 import numpy as np
-import pandas as pd
 import torch
 
 from msam_torch.config.schema import DataConfig, RangeConfig
@@ -25,9 +24,12 @@ from msam_torch.data.bandwidth import RESOLVED, decimate, oversampling
 from msam_torch.data.derivatives import ESTIMATORS, Auto, DerivativeEstimator, Exact, configured, noise_level, takes
 from msam_torch.data.information import check_variation
 from msam_torch.data.systems import get_system, measure
-from msam_torch.data.tables import Table, as_frame, read_frame
+from msam_torch.data.tables import MISSING, TEXT, Table, as_table, is_frame, read_table
 from msam_torch.errors import ConfigError, DataError
 from msam_torch.model.spec import ModelSpec, split_derivative
+
+if TYPE_CHECKING:
+    import pandas
 
 REGULAR = 1e-2  # sampling is regular when every step is within 1 % of the median step
 LARGEST = float(np.finfo(np.float64).max) / 8  # a measured value at most this large keeps third differences finite
@@ -59,11 +61,11 @@ def derivative_estimator(config: DataConfig, in_memory: bool = False) -> Derivat
     return configured(chosen, config.window, config.cutoff)
 
 
-DataArgument = Union[str, Path, Table, Dataset, None]
+DataArgument = Union[str, Path, Mapping, "pandas.DataFrame", Dataset, None]
 
 
 def load_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str = ".", dtype=torch.float64,
-                  frame: Table | None = None, validation_frame: Table | None = None,
+                  frame=None, validation_frame=None,
                   estimator: DerivativeEstimator | None = None,
                   keys: tuple[str, str] = ("data.file", "data.validation_file")) -> tuple[Dataset, Dataset | None]:
     """Training and (if configured) validation datasets for ``spec``.
@@ -77,14 +79,14 @@ def load_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str = ".
     if frame is None and config.system is not None:
         return simulated_dataset(config, spec, dtype, estimator), None
     base_dir = Path(base_dir)
-    table, source = (as_frame(frame, "data frame") if frame is not None
-                     else read_frame(base_dir / config.file, base_dir, keys[0]))
+    table, source = (as_table(frame, "data frame") if frame is not None
+                     else read_table(base_dir / config.file, base_dir, keys[0]))
     train = measured_dataset(select_range(table, config.train, config, source, "data.train"),
                              config, spec, f"{source} (data.train)", dtype, estimator)
     validation, period = None, train.info["sample_time"]  # held out at the training record's (decimated) rate
     if validation_frame is not None or config.validation_file is not None:
-        held, held_source = (as_frame(validation_frame, "validation frame") if validation_frame is not None
-                             else read_frame(base_dir / config.validation_file, base_dir, keys[1]))
+        held, held_source = (as_table(validation_frame, "validation frame") if validation_frame is not None
+                             else read_table(base_dir / config.validation_file, base_dir, keys[1]))
         validation = measured_dataset(held, config, spec, held_source, dtype, estimator, period)
     elif config.validation is not None:
         part = select_range(table, config.validation, config, source, "data.validation")
@@ -104,7 +106,7 @@ def resolve_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str =
     record (the ``validation`` range or ``validation_file``) in the same forms, read whole.
     Default (None): the config's own. ``estimator`` as in :func:`load_datasets`."""
     for key, value in (("data", data), ("validation", validation)):
-        if value is not None and not isinstance(value, (str, Path, pd.DataFrame, Mapping, Dataset)):
+        if value is not None and not (isinstance(value, (str, Path, Mapping, Dataset)) or is_frame(value)):
             raise DataError(f"{key}: expected a CSV/Parquet path, a pandas DataFrame, a mapping of column name to "
                             f"array or a Dataset, got {type(value).__name__}")
     read_whole = validation is not None and not isinstance(validation, Dataset)
@@ -120,8 +122,8 @@ def resolve_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str =
         update.update(file=str(Path(data).resolve()), system=None)
     if isinstance(validation, (str, Path)):
         update.update(validation_file=str(Path(validation).resolve()), validation=None)
-    frame = data if isinstance(data, (pd.DataFrame, Mapping)) else None
-    validation_frame = validation if isinstance(validation, (pd.DataFrame, Mapping)) else None
+    frame = data if isinstance(data, Mapping) or is_frame(data) else None
+    validation_frame = validation if isinstance(validation, Mapping) or is_frame(validation) else None
     keys = ("the data argument" if "file" in update else "data.file",
             "the validation argument" if "validation_file" in update else "data.validation_file")
     train, held_out = load_datasets(config.model_copy(update=update), spec, base_dir, dtype, frame,
@@ -129,26 +131,25 @@ def resolve_datasets(config: DataConfig, spec: ModelSpec, base_dir: Path | str =
     return train, validation if isinstance(validation, Dataset) else held_out
 
 
-def _rows(frame: pd.DataFrame, positions: np.ndarray, limit: int = 5) -> str:
-    label = frame.index.name or "row"
-    shown = ", ".join(str(frame.index[int(i)]) for i in positions[:limit])
+def _rows(frame: Table, positions: np.ndarray, limit: int = 5) -> str:
+    label = frame.label
+    shown = ", ".join(str(frame.labels[int(i)]) for i in positions[:limit])
     return f"{label}{'s' if positions.size > 1 else ''} {shown}{' ...' if positions.size > limit else ''}"
 
 
-def column(frame: pd.DataFrame, name: str, source: str, key: str) -> np.ndarray:
+def column(frame: Table, name: str, source: str, key: str) -> np.ndarray:
     """A numeric column without NaN, inf or values whose differences (up to the third, 8 times the
     largest magnitude) leave the float range; errors name the file, column, rows and config key."""
-    if name not in frame.columns:
-        names = [str(c) for c in frame.columns]
+    if name not in frame.values:
+        names = list(frame.values)
         lower = {n.lower(): n for n in names}
         close = difflib.get_close_matches(str(name).lower(), list(lower), n=1)
         hint = f"; did you mean {lower[close[0]]!r}?" if close else ""
-        listing = "" if frame.attrs.get("private") else f"; columns are {names}{hint}"
+        listing = "" if frame.private else f"; columns are {names}{hint}"
         raise DataError(f"{source}: no column {name!r} (asked for by {key}){listing}")
-    raw = frame[name]
-    values = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=float)
-    for bad, what in ((raw.isna().to_numpy(), "missing or NaN"),
-                      (np.isnan(values) & ~raw.isna().to_numpy(), "non-numeric"),
+    values, kinds = frame.values[name], frame.kinds[name]
+    for bad, what in ((kinds == MISSING, "missing or NaN"),
+                      (kinds == TEXT, "non-numeric"),
                       (np.isinf(values), "infinite")):
         positions = np.flatnonzero(bad)
         if positions.size:
@@ -161,7 +162,7 @@ def column(frame: pd.DataFrame, name: str, source: str, key: str) -> np.ndarray:
     return values
 
 
-def time_axis(frame: pd.DataFrame, config: DataConfig, source: str) -> np.ndarray:
+def time_axis(frame: Table, config: DataConfig, source: str) -> np.ndarray:
     if config.time is not None:
         return column(frame, config.time, source, "data.time")
     if config.sample_time is None:
@@ -169,7 +170,7 @@ def time_axis(frame: pd.DataFrame, config: DataConfig, source: str) -> np.ndarra
     return np.arange(len(frame)) * config.sample_time
 
 
-def select_range(frame: pd.DataFrame, rng: RangeConfig, config: DataConfig, source: str, key: str) -> pd.DataFrame:
+def select_range(frame: Table, rng: RangeConfig, config: DataConfig, source: str, key: str) -> Table:
     """Rows of ``frame`` in ``rng`` (inclusive bounds, by time or 0-based sample index)."""
     if len(frame) == 0:
         raise DataError(f"{source}: the table has no rows")
@@ -183,10 +184,10 @@ def select_range(frame: pd.DataFrame, rng: RangeConfig, config: DataConfig, sour
         span = f"{axis.min():.6g} to {axis.max():.6g}" if axis.size else "nothing"
         raise ConfigError(key, f"the range [{rng.start}, {rng.stop}] by {rng.by} selects no samples of "
                                f"{source} (its {rng.by} runs from {span})")
-    return frame.loc[keep]
+    return frame.rows(keep)
 
 
-def measured_dataset(frame: pd.DataFrame, config: DataConfig, spec: ModelSpec, source: str, dtype,
+def measured_dataset(frame: Table, config: DataConfig, spec: ModelSpec, source: str, dtype,
                      estimator: DerivativeEstimator | None = None, period: float | None = None) -> Dataset:
     """Signals of ``spec`` from a table: time checks, column mapping, resampling, decimation of
     an oversampled record (to about the sample time ``period``, default: chosen from its band,
@@ -238,7 +239,7 @@ def decimate_oversampled(t: np.ndarray, measured: dict, info: dict,
         "decimated": {"from": int(t.size), "to": int(kept.size), "factor": every, "rule": rule}}
 
 
-def check_time(frame: pd.DataFrame, t: np.ndarray, measured: dict, source: str, config: DataConfig,
+def check_time(frame: Table, t: np.ndarray, measured: dict, source: str, config: DataConfig,
                estimated: bool, info: dict) -> tuple[np.ndarray, dict, dict]:
     """Strictly increasing time; a uniform grid where derivatives are estimated (or resampled)."""
     steps = np.diff(t)

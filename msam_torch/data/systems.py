@@ -11,7 +11,6 @@ from dataclasses import dataclass, field
 from typing import Callable, Mapping
 
 import torch
-from torchdiffeq import odeint
 
 from msam_torch.data.cache import cached
 from msam_torch.errors import ConfigError
@@ -91,8 +90,12 @@ def measure(system: System, parameters: Mapping[str, float] | None = None, dtype
     p = dict(system.parameters if parameters is None else parameters)
     t = torch.linspace(0.0, system.t_end, system.samples, dtype=dtype)
     func = lambda tt, s: system.rhs(tt, s, p, {k: u(tt) for k, u in system.inputs.items()})
-    integrate = lambda: odeint(func, torch.tensor(system.initial, dtype=dtype), t, rtol=rtol, atol=atol,
-                               method="dopri5")
+
+    def integrate():
+        from torchdiffeq import odeint  # only on a cache miss: torchdiffeq imports scipy.integrate
+
+        return odeint(func, torch.tensor(system.initial, dtype=dtype), t, rtol=rtol, atol=atol, method="dopri5")
+
     trajectory = cached(integrate, "system", system, p, dtype, rtol, atol)
     inputs = {k: u(t) for k, u in system.inputs.items()}
     rates = system.rhs(t, trajectory, p, inputs)

@@ -22,12 +22,12 @@ from typing import Mapping
 
 import numpy as np
 import torch
-from scipy.signal import resample_poly
 
 from msam_torch.config.schema import DataConfig
 from msam_torch.data import hold
 from msam_torch.data.bandwidth import band_edge, decimate
 from msam_torch.data.derivatives import DerivativeEstimator, InBand
+from msam_torch.data.filters import resample
 from msam_torch.data.loading import Dataset, build_dataset
 from msam_torch.engine.weak_form import TestFunctions, half_width_for, weak_data
 from msam_torch.errors import DataError, MSAMError
@@ -287,7 +287,7 @@ def refined(signal: torch.Tensor, k: int, shape: str = "linear") -> torch.Tensor
     half-width holds fewer than :data:`QUADRATURE` samples, the weak form's quadrature of a candidate
     function (``sign(v)`` of a speed that reverses within a few samples) needs points between them.
     ``shape``: ``linear``, ``cubic`` (local cubics, :func:`~msam_torch.data.hold.local_cubic`) or
-    ``band-limited`` (the polyphase low-pass of :func:`scipy.signal.resample_poly`); the last two keep
+    ``band-limited`` (the polyphase low-pass of :func:`~msam_torch.data.filters.resample`); the last two keep
     a smooth function of a signal within a few tenths of a percent of its weak form where linear
     interpolation is off by several percent."""
     if k <= 1:
@@ -295,7 +295,7 @@ def refined(signal: torch.Tensor, k: int, shape: str = "linear") -> torch.Tensor
     n = signal.shape[-1]
     if shape != "linear":
         values = signal.detach().cpu().numpy()
-        fine = (resample_poly(values, k, 1, axis=-1, padtype="line")[..., :(n - 1) * k + 1] if shape == "band-limited"
+        fine = (resample(values, k, 1)[..., :(n - 1) * k + 1] if shape == "band-limited"
                 else hold.local_cubic(values, k))
         return torch.as_tensor(np.ascontiguousarray(fine), dtype=signal.dtype, device=signal.device)
     position = torch.arange((n - 1) * k + 1, device=signal.device, dtype=torch.float64) / k

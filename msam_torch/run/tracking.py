@@ -14,7 +14,6 @@ numbers and its figures as images.
 """
 from __future__ import annotations
 
-import io
 import math
 import re
 from pathlib import Path
@@ -110,8 +109,9 @@ class TensorBoardTracker:
         ``exponent``, the held-out ``improvement`` and the bootstrap ``win_frequency``
         (``diagnosis/<target>/...``); per record the free-run NRMSE of each model
         (``diagnosis/free_run_nrmse/<record>/<model>``); the report's figures
-        (:class:`~msam_torch.diagnosis.report.figures.Figure`) as images (``diagnosis/<figure>``)."""
-        from matplotlib.image import imread
+        (:class:`~msam_torch.diagnosis.report.figures.Figure`) as images (``diagnosis/<figure>``), their
+        PNG bytes as they are (not decoded and encoded again)."""
+        from tensorboard.compat.proto.summary_pb2 import Summary
 
         self.writer.add_text("diagnosis/summary", "\n".join("    " + line for line in str(report).splitlines()))
         for g in report.equations:
@@ -125,8 +125,10 @@ class TensorBoardTracker:
                 if value is not None:
                     self.writer.add_scalar(f"diagnosis/free_run_nrmse/{record}/{model}", value)
         for figure in figures:
-            image = imread(io.BytesIO(figure.png), format="png")[..., :3]  # RGBA floats in [0, 1]
-            self.writer.add_image(f"diagnosis/{tag_name(figure.name.removesuffix('.png'))}", image, dataformats="HWC")
+            width, height = (int.from_bytes(figure.png[k:k + 4], "big") for k in (16, 20))  # the PNG's IHDR chunk
+            image = Summary.Image(height=height, width=width, colorspace=4, encoded_image_string=figure.png)  # RGBA
+            tag = f"diagnosis/{tag_name(figure.name.removesuffix('.png'))}"
+            self.writer.file_writer.add_summary(Summary(value=[Summary.Value(tag=tag, image=image)]))
 
     def layout(self) -> dict:
         """Custom-scalars layout: per equation, one chart per stage and measure overlaying every candidate."""

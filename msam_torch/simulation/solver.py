@@ -25,7 +25,6 @@ from dataclasses import fields, replace
 
 import torch
 import torch.autograd.forward_ad as forward_ad
-from torchdiffeq import odeint
 
 from msam_torch.simulation.grids import Grids
 from msam_torch.simulation.ode import Parameters, SystemModel
@@ -75,6 +74,8 @@ def simulate(model: SystemModel, record: Record, p: Parameters, x0: torch.Tensor
         if method in TABLEAUS:
             states = _runge_kutta(model, p, record, x0, TABLEAUS[method], substeps, step, guarded, span, limits, grids)
         else:
+            from torchdiffeq import odeint  # adaptive methods only: torchdiffeq imports scipy.integrate
+
             rhs = model.rhs(p, x0.dtype, x0.device)
             values = lambda t, x: model.values(t, x, record.at(t.reshape(1)).squeeze(-2))
             try:

@@ -329,3 +329,22 @@ def test_the_margin_names_the_rival_even_without_a_fitted_runner_up():
                               "good in 2 % of held-out resamples and within the margin in 4 % of cross-fitted "
                               "training ones")
     assert margin({**pinned, "rival": None}) == "no competing hypothesis with another name"
+
+
+def test_a_long_line_keeps_each_pixel_columns_first_lowest_highest_and_last_sample():
+    from matplotlib.figure import Figure as Drawing
+
+    from msam_torch.diagnosis.report.figures import columns
+
+    fig = Drawing(figsize=(2, 1), dpi=100)  # 200 pixel columns
+    t = np.linspace(0.0, 1.0, 20001)
+    y = np.sin(40 * t) + np.random.default_rng(0).standard_normal(t.size)
+    kept_t, kept_y = columns(t, y, fig)
+    assert kept_t.size <= 4 * 200 and kept_t[0] == t[0] and kept_t[-1] == t[-1] and np.all(np.diff(kept_t) > 0)
+    column = lambda x: np.minimum((x * 200).astype(int), 199)
+    for c in (0, 57, 199):
+        inside, kept = column(t) == c, column(kept_t) == c
+        assert kept_y[kept].min() == y[inside].min() and kept_y[kept].max() == y[inside].max()
+    assert columns(t[:800], y[:800], fig)[0].size == 800  # at most four samples a column: all kept
+    y[5] = np.nan
+    assert columns(t, y, fig)[0].size == t.size  # a line with a gap is drawn whole

@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import math
 
-import scipy.signal
 import torch
-from torchdiffeq._impl.odeint import SOLVERS  # the method names odeint accepts (no public list)
 
+from msam_torch.data.filters import butterworth, zero_phase
 from msam_torch.diagnosis.compare import measures
 from msam_torch.diagnosis.compare.confidence import best_effect
 from msam_torch.diagnosis.effects.bootstrap import Bootstrap
@@ -50,6 +49,10 @@ def models(extended: Equation, equation: Equation, nominal: torch.Tensor, choice
 
 def check_solver(method: str) -> None:
     """A torchdiffeq method name, else an error naming the option."""
+    if method in TABLEAUS:  # the fixed-step methods, without importing torchdiffeq (and with it scipy)
+        return
+    from torchdiffeq._impl.odeint import SOLVERS  # the method names odeint accepts (no public list)
+
     if method not in SOLVERS:
         raise MSAMError(f"solver: {method!r} is not a torchdiffeq method (one of {', '.join(sorted(SOLVERS))})")
 
@@ -248,9 +251,8 @@ def anti_aliased(signal: torch.Tensor, dt: float, step: float) -> torch.Tensor:
     the same input and differ only by their integration error; unchanged when ``step`` <= ``dt``."""
     if step <= dt * (1 + 1e-9):
         return signal
-    sos = scipy.signal.butter(4, 0.5 / step, fs=1 / dt, output="sos")
-    filtered = scipy.signal.sosfiltfilt(sos, signal.detach().cpu().double().numpy())
-    return torch.as_tensor(filtered.copy(), dtype=signal.dtype, device=signal.device)
+    filtered = zero_phase(butterworth(4, dt / step), signal.detach().cpu().double().numpy())
+    return torch.as_tensor(filtered, dtype=signal.dtype, device=signal.device)
 
 
 def _off(runs: dict, reference: dict, spread: dict) -> torch.Tensor:

@@ -8,8 +8,14 @@ signal (where; the record's edges, where the derivative estimate is unreliable, 
 out of the axis scaling, :mod:`.edges`); the residual's autocorrelation and its cross-correlation with each input, with
 the white-noise band +-1.96/sqrt(N) (:func:`correlations`). Per record: the free runs of the
 starting, theta-refitted and adapted models against the measurement, and where the model has
-inputs, the empirical frequency response (Welch cross-spectral estimate, ``scipy.signal``) of the
-data and of each model's free run (:func:`frequency_response`).
+inputs, the empirical frequency response (Welch cross-spectral estimate) of the data and of each
+model's free run (:func:`frequency_response`).
+
+Drawn fast: :class:`matplotlib.figure.Figure` on the Agg canvas (no pyplot); a line with more
+samples than its figure has pixel columns is cut to the first, lowest, highest and last sample of
+each column (:func:`columns`: the same pixels); log axes labelled in plain numbers, not mathtext.
+The correlations and spectra are computed with NumPy's FFT, as statsmodels' ``acf``/``ccf`` and
+scipy's ``welch``/``csd`` define them.
 """
 from __future__ import annotations
 
@@ -19,8 +25,7 @@ import textwrap
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal as sig
-from statsmodels.tsa.stattools import acf, ccf
+from numpy.lib.stride_tricks import sliding_window_view
 
 from msam_torch.diagnosis.report.edges import Edges, edges
 from msam_torch.diagnosis.report.units import Units
@@ -56,26 +61,47 @@ def correlations(residual: np.ndarray, inputs: dict, lags: int = LAGS) -> dict:
     out = {"lags": lags, "n": n, "band": BAND / math.sqrt(n), "acf": np.zeros(lags + 1), "ccf": {}}
     if not r.std() > 0:  # a residual that is exactly constant correlates with nothing
         return out
-    out["acf"] = acf(r, nlags=lags, fft=True)
+    covariance = _lagged(r, r, lags)
+    out["acf"] = covariance / covariance[0]
     for name, u in inputs.items():
         u = np.asarray(u, dtype=float)
         if not u.std() > 0:
             continue
-        ahead, behind = ccf(r, u, adjusted=False, nlags=lags + 1), ccf(u, r, adjusted=False, nlags=lags + 1)
+        scale = r.std() * u.std()
+        ahead, behind = _lagged(r, u, lags) / scale, _lagged(u, r, lags) / scale
         out["ccf"][name] = np.concatenate([behind[1:][::-1], ahead])
     return out
 
 
+def _lagged(x: np.ndarray, y: np.ndarray, lags: int) -> np.ndarray:
+    """``sum_t x[t + k] y[t] / N`` of the demeaned ``x`` and ``y`` at lags k = 0..``lags`` (the
+    unadjusted cross-covariance of statsmodels' ``ccovf``), by FFT."""
+    size = 2 * x.size
+    spectrum = np.fft.rfft(x - x.mean(), size) * np.conj(np.fft.rfft(y - y.mean(), size))
+    return np.fft.irfft(spectrum, size)[:lags + 1] / x.size
+
+
 def frequency_response(t: np.ndarray, u: np.ndarray, ys: np.ndarray) -> tuple:
     """Empirical transfer estimate ``P_uy / P_uu`` (Welch, Hann windows of half the record)
-    from ``u`` to each row of ``ys`` (B, N) at the frequencies the input excites (power at least
-    :data:`EXCITED` of its peak); frequencies in cycles per time unit."""
-    fs = 1.0 / float(np.median(np.diff(t)))
-    segment = max(16, u.size // 2)
-    f, puu = sig.welch(u - u.mean(), fs=fs, nperseg=segment)
-    _, puy = sig.csd(u - u.mean(), ys - ys.mean(-1, keepdims=True), fs=fs, nperseg=segment, axis=-1)
-    keep = (puu >= EXCITED * puu.max()) & (f > 0)
+    from ``u`` to each row of ``ys`` (B, N) at the frequencies the input excites (one-sided power
+    at least :data:`EXCITED` of its peak); frequencies in cycles per time unit. The segments overlap
+    by half and are each demeaned, as in ``scipy.signal.welch`` and ``csd``."""
+    length = min(u.size, max(16, u.size // 2))
+    taper = np.hanning(length + 1)[:-1]  # periodic Hann
+    spectrum = lambda x: np.fft.rfft(taper * _demeaned(sliding_window_view(x, length, axis=-1)[..., ::length - length // 2, :]))
+    du, dy = spectrum(u - u.mean()), spectrum(ys - ys.mean(-1, keepdims=True))
+    puu, puy = (np.abs(du) ** 2).mean(-2), (np.conj(du) * dy).mean(-2)
+    sides = np.full(puu.size, 2.0)
+    sides[0] = 1.0
+    if length % 2 == 0:
+        sides[-1] = 1.0  # the Nyquist frequency has no mirror image
+    f = np.fft.rfftfreq(length, float(np.median(np.diff(t))))
+    keep = (sides * puu >= EXCITED * (sides * puu).max()) & (f > 0)
     return f[keep], puy[..., keep] / puu[keep]
+
+
+def _demeaned(x: np.ndarray) -> np.ndarray:
+    return x - x.mean(-1, keepdims=True)
 
 
 def render(report, units: Units) -> list[Figure]:
@@ -86,9 +112,6 @@ def render(report, units: Units) -> list[Figure]:
 
 def draw(report, units: Units) -> list[tuple]:
     """``(name, title, matplotlib figure)`` of every figure of ``report``, laid out, in report order."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     figures = []
     for target, series in report.series.items():
         gap = next((g for g in report.equations if g.target == target), None)
@@ -114,13 +137,12 @@ def draw(report, units: Units) -> list[tuple]:
 
 
 def _where(target: str, where: dict, units: Units, edge: Edges | None) -> list[tuple]:
-    import matplotlib.pyplot as plt
-
     t, r, flagged = (np.asarray(where[k].cpu()) for k in ("t", "residual", "flagged"))
     model = where.get("model", "starting")
     inside = np.ones_like(flagged) if edge is None else edge.inside(t)
-    fig, ax = plt.subplots(figsize=(8, 3.4), layout="constrained")
-    ax.plot(t, r, lw=0.8, color="tab:blue", label=f"residual of the {model} structure fitted where it holds")
+    fig, axes = _canvas((8, 3.4))
+    ax = axes[0, 0]
+    ax.plot(*columns(t, r, fig), lw=0.8, color="tab:blue", label=f"residual of the {model} structure fitted where it holds")
     if flagged.any():
         ax.scatter(t[flagged], r[flagged], s=6, color="tab:red", label="flagged (where it fails)")
     _shade_edges(ax, t, r, inside, edge)
@@ -129,8 +151,7 @@ def _where(target: str, where: dict, units: Units, edge: Edges | None) -> list[t
     out = [_figure(fig, ax, f"{target}_residual_time", title)]
     values = where["values"]
     if values:
-        fig, axes = plt.subplots(1, len(values), figsize=(4 * len(values), 3.6), squeeze=False, sharey=True,
-                                 layout="constrained")
+        fig, axes = _canvas((4 * len(values), 3.6), 1, len(values), sharey=True)
         for ax, (name, v) in zip(axes[0], values.items()):
             v = np.asarray(v.cpu())
             for rows, colour, label in ((~flagged & inside, "tab:blue", "model holds"),
@@ -204,12 +225,9 @@ def _spacing(t, stride: int) -> float:
 
 def _correlation_figure(target: str, source: str, residuals: dict, inputs: dict, spacing: float,
                         units: Units) -> tuple:
-    import matplotlib.pyplot as plt
-
     found = {m: correlations(r, inputs) for m, r in residuals.items()}
     names = sorted({u for c in found.values() for u in c["ccf"]})
-    fig, axes = plt.subplots(1, 1 + len(names), figsize=(4.2 * (1 + len(names)), 3.6), squeeze=False,
-                             layout="constrained")
+    fig, axes = _canvas((4.2 * (1 + len(names)), 3.6), 1, 1 + len(names))
     first = next(iter(found.values()))
     for m, c in found.items():
         axes[0, 0].plot(spacing * np.arange(c["lags"] + 1), c["acf"], marker=".", lw=0.8, color=COLOURS[m], label=NAMES[m])
@@ -227,16 +245,14 @@ def _correlation_figure(target: str, source: str, residuals: dict, inputs: dict,
 
 
 def _free_run(label: str, run: dict, units: Units) -> tuple:
-    import matplotlib.pyplot as plt
-
     states = list(run["measured"])
     t = np.asarray(run["t"].cpu())
-    fig, axes = plt.subplots(len(states), 1, figsize=(8, 1.2 + 2.4 * len(states)), squeeze=False, sharex=True,
-                             layout="constrained")
+    fig, axes = _canvas((8, 1.2 + 2.4 * len(states)), len(states), 1, sharex=True)
     for ax, x in zip(axes[:, 0], states):
-        ax.plot(t, np.asarray(run["measured"][x].cpu()), color=COLOURS["measured"], lw=1.2, label=NAMES["measured"])
+        ax.plot(*columns(t, np.asarray(run["measured"][x].cpu()), fig), color=COLOURS["measured"], lw=1.2,
+                label=NAMES["measured"])
         for k, m in enumerate(MODELS):
-            ax.plot(t, np.asarray(run["simulated"][x][k].cpu()), lw=0.9, color=COLOURS[m], label=NAMES[m])
+            ax.plot(*columns(t, np.asarray(run["simulated"][x][k].cpu()), fig), lw=0.9, color=COLOURS[m], label=NAMES[m])
         ax.set_ylabel(units.label(x))
     axes[-1, 0].set_xlabel(units.time)
     record = label.replace("_", "-")
@@ -244,13 +260,18 @@ def _free_run(label: str, run: dict, units: Units) -> tuple:
 
 
 def _frequency(label: str, run: dict, inputs: dict, units: Units) -> tuple:
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
+    from matplotlib.ticker import FormatStrFormatter, LogFormatter, LogLocator, NullFormatter
+
+    class Plain(LogFormatter):
+        """The ticks a log axis labels, as plain numbers (``0.2``): no mathtext, whose first use costs
+        a tenth of a second."""
+
+        def __call__(self, x, pos=None):
+            return f"{x:g}" if super().__call__(x, pos) else ""
 
     t = np.asarray(run["t"].cpu())
     pairs = [(x, u) for x in run["measured"] for u in inputs]
-    fig, axes = plt.subplots(2, len(pairs), figsize=(max(8.0, 4.6 * len(pairs)), 5.6), squeeze=False, sharex="col",
-                             layout="constrained")
+    fig, axes = _canvas((max(8.0, 4.6 * len(pairs)), 5.6), 2, len(pairs), sharex="col")
     for col, (x, u) in enumerate(pairs):
         simulated = np.asarray(run["simulated"][x].cpu())
         rows = np.vstack([np.asarray(run["measured"][x].cpu())[None], simulated])
@@ -267,6 +288,8 @@ def _frequency(label: str, run: dict, inputs: dict, units: Units) -> tuple:
         axes[1, col].xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
         axes[1, col].xaxis.set_major_formatter(FormatStrFormatter("%g"))
         axes[1, col].xaxis.set_minor_formatter(NullFormatter())
+        axes[0, col].yaxis.set_major_formatter(Plain(labelOnlyBase=False))
+        axes[0, col].yaxis.set_minor_formatter(Plain(labelOnlyBase=False))
     title = f"Frequency response on the {label.replace('_', '-')} record: data and free runs (Welch estimate)"
     return _figure(fig, axes[0, 0], f"frequency_response_{label}", title)
 
@@ -287,11 +310,34 @@ def _figure(fig, legend_axis, name: str, title: str) -> tuple:
     return name, title, fig
 
 
-def _png(name: str, title: str, fig) -> Figure:
-    """The PNG bytes of a drawn figure (closed)."""
-    import matplotlib.pyplot as plt
+def _canvas(size: tuple, rows: int = 1, cols: int = 1, **shared) -> tuple:
+    """A figure of ``size`` inches on the Agg canvas (no pyplot: nothing is registered or shown)
+    with a ``rows`` x ``cols`` grid of axes, laid out by the constrained layout."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure as Drawing
 
+    fig = Drawing(figsize=size, dpi=DPI, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig, fig.subplots(rows, cols, squeeze=False, **shared)
+
+
+def columns(x: np.ndarray, y: np.ndarray, fig) -> tuple[np.ndarray, np.ndarray]:
+    """The samples of a line ``y(x)`` (``x`` increasing) that draw the same pixels in ``fig``: per
+    pixel column of the figure's width (wider than any of its axes), the first, lowest, highest and
+    last sample (M4 aggregation). A line that is not finite everywhere is kept whole."""
+    pixels = int(fig.get_figwidth() * fig.dpi)
+    if x.size <= 4 * pixels or not (np.isfinite(y).all() and x[-1] > x[0]):
+        return x, y
+    column = np.minimum(((x - x[0]) * (pixels / (x[-1] - x[0]))).astype(int), pixels - 1)
+    first = np.flatnonzero(np.diff(column, prepend=-1))
+    last = np.append(first[1:], x.size) - 1
+    order = np.lexsort((y, column))  # by column, then by value: a column's lowest first, its highest last
+    keep = np.unique(np.concatenate([first, last, order[first], order[last]]))
+    return x[keep], y[keep]
+
+
+def _png(name: str, title: str, fig) -> Figure:
+    """The PNG bytes of a drawn figure."""
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=DPI)
-    plt.close(fig)
     return Figure(f"{name}.png", title, buffer.getvalue())

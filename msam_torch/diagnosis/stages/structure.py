@@ -12,9 +12,6 @@ from __future__ import annotations
 import math
 
 import torch
-from scipy.spatial import cKDTree
-from scipy.stats import chi2, norm
-from statsmodels.stats.diagnostic import acorr_ljungbox
 
 from msam_torch.diagnosis.compare.confidence import significant
 from msam_torch.diagnosis.effects.hypotheses import Fitted, predict_rows
@@ -25,6 +22,7 @@ from msam_torch.model.spec import Equation
 NEIGHBOURS = 10
 LAGS = 10  # autocorrelation and input cross-correlation lags, at most
 FEWEST_ROWS = 12  # independent rows the residual checks need
+BRUTE_FORCE = 250_000  # query-point pairs up to which nearest neighbours come from every distance
 
 
 def _features(equation: Equation, signals: dict, tests: TestFunctions):
@@ -41,11 +39,8 @@ def _explained(equation: Equation, weak: WeakForm, choices: torch.Tensor, origin
     x_fit, x_val = x_fit[weak.fit_rows], x_val[weak.val_rows]
     spread = x_fit.std(0)
     varies = spread > 0  # a signal constant over the fitted rows (a held input) tells no rows apart
-    scaled = lambda x: (x[:, varies] / spread[varies] if bool(varies.any()) else torch.zeros_like(x[:, :1])).cpu().numpy()
-    k = min(NEIGHBOURS, x_fit.shape[0])
-    tree = cKDTree(scaled(x_fit))  # n log n, not the n_val x n_fit distance matrix
-    _, found = tree.query(scaled(x_val), k=list(range(1, k + 1)))
-    neighbours = torch.as_tensor(found, device=x_fit.device)
+    scaled = lambda x: x[:, varies] / spread[varies] if bool(varies.any()) else torch.zeros_like(x[:, :1])
+    neighbours = nearest(scaled(x_fit), scaled(x_val), min(NEIGHBOURS, x_fit.shape[0]))
     fit_pred = predict_rows(weak.data, choices, original)[0]  # rows of the weighted fit: weights are 0/1
     val_pred = predict_rows(weak.val_data, choices, original)[0]
     explained = []
@@ -91,8 +86,7 @@ def residual_checks(equation: Equation, weak: WeakForm, choices: torch.Tensor, o
     if rows.numel() < FEWEST_ROWS:  # too few rows to test for structure: the residual must be the noise's size
         few = f"only {rows.numel()} independent held-out rows"
         floor = max(row_noise, negligible * weak.target_rms)
-        out.update(unchecked=few, noise_p=float(chi2.sf(float(residual[rows].square().sum()) / floor**2,
-                                                        rows.numel())))
+        out.update(unchecked=few, noise_p=chi2_sf(float(residual[rows].square().sum()) / floor**2, rows.numel()))
         if out["noise_p"] < level:
             out["failed"].append(f"{few}, too few to test the re-fitted start's residual for structure, and it is "
                                  f"{rms / floor:.3g} times what the measurement noise explains "
@@ -128,7 +122,7 @@ def whiteness(residual: torch.Tensor, inputs: list[torch.Tensor], level: float, 
     r = residual.double().cpu()
     n = r.numel()
     lags = max(1, min(LAGS, n // 5))
-    out = {"ljung_box_p": float(acorr_ljungbox(r.numpy(), lags=[lags])["lb_pvalue"].iloc[0]),
+    out = {"ljung_box_p": ljung_box(r, lags),
            "input_correlation_p": None, "failed": []}
     z = (r - r.mean()) / r.std().clamp_min(torch.finfo(r.dtype).tiny)
     correlation = lambda a, b: float((a * b).mean())
@@ -145,7 +139,7 @@ def whiteness(residual: torch.Tensor, inputs: list[torch.Tensor], level: float, 
             largest, cross = max(largest, abs(c) * math.sqrt(a.numel())), max(cross, c**2)
             tests += 1
     if tests:
-        out["input_correlation_p"] = float(min(1.0, tests * 2 * norm.sf(largest)))
+        out["input_correlation_p"] = float(min(1.0, tests * 2 * torch.special.ndtr(torch.tensor(-largest, dtype=torch.float64))))
     out["shares"] = {"autocorrelation": autocorrelation, "input_correlation": cross if tests else None}
     matters = lambda share: relevant(share, float(r.square().mean().sqrt()), target_rms, relative, absolute)
     if out["ljung_box_p"] < level and matters(autocorrelation):
@@ -155,3 +149,34 @@ def whiteness(residual: torch.Tensor, inputs: list[torch.Tensor], level: float, 
         out["failed"].append(f"the re-fitted start's residual is correlated with the inputs (p = {out['input_correlation_p']:.2g}; "
                              f"one lagged input predicts {100 * cross:.0f} % of its mean square)")
     return out
+
+
+def ljung_box(residual: torch.Tensor, lags: int) -> float:
+    """The Ljung-Box p-value of ``residual``'s autocorrelation at lags 1..``lags``: ``Q = n (n + 2)
+    sum_k rho_k^2 / (n - k)`` against the chi-square distribution with ``lags`` degrees of freedom
+    (``statsmodels.stats.diagnostic.acorr_ljungbox``'s)."""
+    x = residual.double() - residual.double().mean()
+    n = x.numel()
+    rho = torch.stack([(x[k:] * x[:n - k]).sum() for k in range(1, lags + 1)]) / (x * x).sum()
+    q = n * (n + 2) * float((rho**2 / (n - torch.arange(1, lags + 1, dtype=x.dtype))).sum())
+    return chi2_sf(q, lags)
+
+
+def chi2_sf(x: float, df: int) -> float:
+    """The chi-square distribution's survival function, ``P(X > x)`` for ``df`` degrees of freedom:
+    the regularised upper incomplete gamma function ``Q(df / 2, x / 2)``."""
+    return float(torch.special.gammaincc(torch.tensor(df / 2, dtype=torch.float64), torch.tensor(x / 2, dtype=torch.float64)))
+
+
+def nearest(points: torch.Tensor, queries: torch.Tensor, k: int) -> torch.Tensor:
+    """The indices (Q, k) of the ``k`` points (N, D) nearest to each query (Q, D), nearest first, by
+    Euclidean distance: up to :data:`BRUTE_FORCE` query-point pairs from every distance (exact
+    differences; no scipy import, a fifth of a second of a short diagnosis), beyond by a k-d tree
+    (``scipy.spatial.cKDTree``: n log n, not the Q x N distances)."""
+    if queries.shape[0] * points.shape[0] <= BRUTE_FORCE:
+        distances = torch.cdist(queries, points, compute_mode="donot_use_mm_for_euclid_dist")
+        return distances.topk(k, largest=False).indices
+    from scipy.spatial import cKDTree
+
+    _, found = cKDTree(points.cpu().numpy()).query(queries.cpu().numpy(), k=list(range(1, k + 1)))
+    return torch.as_tensor(found, device=points.device)
