@@ -47,7 +47,7 @@ def oscillator(seed: int, effect: str, noise: float = 0.01):
     law = {"saturation": lambda x, v, u: -0.5 * v - 4.0 * x + clip(u, share * u_max),
            "dead zone": lambda x, v, u: -0.5 * v - 4.0 * x + dead_zone(u, share * u_max),
            "spring saturation": lambda x, v, u: -0.5 * v - 4.0 * clip(x, share * x_max) + u,
-           "Coulomb friction": lambda x, v, u: -0.5 * v - 4.0 * x - 1.5 * np.sign(v) + u,
+           "Coulomb friction": lambda x, v, u: -0.5 * v - 4.0 * x - 1.5 * np.tanh(v / 1e-3) + u,  # sign(v), smoothed for the solver
            "quadratic drag": lambda x, v, u: -0.5 * v - 4.0 * x - 0.4 * v * abs(v) + u,
            "hardening cubic stiffness": lambda x, v, u: -0.5 * v - 4.0 * x - 1.0 * x**3 + u}[effect]
     rhs = lambda x, v, u: [v, law(x, v, u)]

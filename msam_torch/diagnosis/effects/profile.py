@@ -10,6 +10,7 @@ import torch
 
 from msam_torch.diagnosis.effects.bootstrap import block_weights
 from msam_torch.diagnosis.effects.hypotheses import (
+    Fitted,
     Hypothesis,
     encode,
     extended_equation,
@@ -48,7 +49,10 @@ def profile(equation: Equation, found: list[Threshold], estimation: Estimation, 
                           with_levels(estimation.held_out), estimation.half_width, options.blocks)
     choices, starts = encode(prepared, hypotheses, weak.signals["t"].device)
     q = len(prepared.adjustable)
-    fitted = fit(weak.data, choices, starts, step_options, options.bootstrap_steps, q)
+    stepped = torch.tensor([h.has_exponent for h in hypotheses])  # a clip or dead zone needs theta alone
+    fitted = _merged([(rows, fit(weak.data, choices[rows], starts[rows], step_options, steps, q))
+                      for rows, steps in ((stepped, options.bootstrap_steps), (~stepped, 0)) if bool(rows.any())],
+                     len(hypotheses))
     score = torch.where(fitted.invalid, torch.full_like(fitted.fitness, -torch.inf), fitted.fitness)  # (G, 1 + K)
     best = score[:, 1:].argmax(0)  # (K,)
     spans = [float(estimation.train[f.signal].max() - estimation.train[f.signal].min()) for f in found]
@@ -64,3 +68,16 @@ def profile(equation: Equation, found: list[Threshold], estimation: Estimation, 
     return [replace(f, value=v, span=s, half_width=spread(chosen[:, k].tolist(), v, step(k)))
             for k, (f, v, s) in enumerate(zip(found, values, spans))]
 
+
+
+def _merged(parts: list, c: int) -> Fitted:
+    """The fits of disjoint sets of hypotheses (mask (C,), :class:`~.hypotheses.Fitted`) as one of all ``c``."""
+    first = parts[0][1]
+
+    def field(name):
+        sample = getattr(first, name)
+        out = sample.new_empty(sample.shape[:1] + (c,) + sample.shape[2:])
+        for rows, part in parts:
+            out[:, rows.to(out.device)] = getattr(part, name)
+        return out
+    return Fitted(*(field(n) for n in ("gamma", "theta", "theta_fixed", "fitness", "invalid")))

@@ -116,13 +116,14 @@ class _Swap(ast.NodeTransformer):
 
 
 def forms(equation: Equation, summary: dict, signals: dict) -> list[Threshold]:
-    """Every threshold form (at no value yet) on the signals of the localised rules that remove at
-    least :data:`RELEVANT` of the squared residual: hinges on either side of each, and a clip and a
-    dead zone of each component that reads it."""
-    found = []
-    for region in summary.get("regions", []):
+    """Every threshold form (at no value yet) on the signals of the relevant localised rules (each
+    signal's best, :func:`~msam_torch.diagnosis.stages.localise.where`): those whose split removes at
+    least :data:`RELEVANT` of the squared residual and at least half what the best rule's removes.
+    Hinges on either side of each signal, and a clip and a dead zone of each component that reads it."""
+    found, regions = [], summary.get("regions", [])
+    for region in regions:
         s = region["signal"]
-        if region["explained"] < RELEVANT or s not in signals:
+        if region["explained"] < max(RELEVANT, regions[0]["explained"] / 2) or s not in signals:
             continue
         for shape in SHAPES.values():
             readers = [i for i, c in enumerate(equation.components) if s in c.term.names] if shape.replaces else [None]
