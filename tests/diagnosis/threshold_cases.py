@@ -11,6 +11,7 @@ from scipy.integrate import solve_ivp
 
 from msam_torch.data.systems import WITHHELD
 
+SAMPLES = 3000
 OSCILLATOR = WITHHELD["msd_linear"].model  # m x_ddot = -c x_dot - k x + u, the force's component fixed
 
 
@@ -28,39 +29,44 @@ def _multisine(rng, t, amplitude):
     return lambda tt: amplitude * np.sin(np.multiply.outer(tt, 2 * np.pi * freqs) + phases).sum(-1) / np.sqrt(3)
 
 
-def _oscillator_record(rng, rhs, noise, samples=3000):
-    t = np.linspace(0.0, 40.0, samples)
-    u = _multisine(rng, t, 7.0)
+def _oscillator_record(rng, u, rhs, noise):
+    t = np.linspace(0.0, 40.0, SAMPLES)
     x = solve_ivp(lambda tt, s: rhs(s[0], s[1], float(u(tt))), (0.0, 40.0), [0.0, 0.0], t_eval=t,
                   rtol=1e-9, atol=1e-9, max_step=0.05).y[0]
-    return pd.DataFrame({"t": t, "x": x + noise * x.std() * rng.standard_normal(samples), "u": u(t)})
+    return pd.DataFrame({"t": t, "x": x + noise * x.std() * rng.standard_normal(SAMPLES), "u": u(t)})
 
 
 def oscillator(seed: int, effect: str, noise: float = 0.01):
-    """The oscillator ``x'' = -0.5 x' - 4 x + u`` with ``effect``: 'saturation' (u clipped at
-    0.4-0.7 of its largest magnitude), 'dead zone' (u's dead band 0.1-0.3 of it), 'spring
-    saturation' (the spring's x clipped at 0.4-0.7 of the linear response's largest |x|), or a
-    power law: 'Coulomb friction', 'quadratic drag', 'hardening cubic stiffness'."""
+    """The oscillator ``x'' = -0.5 x' - 4 x + u`` with ``effect``: 'saturation' (u clipped where
+    10-30 % of the training record's samples lie beyond), 'dead zone' (u's dead band holding 10-30 %
+    of them), 'spring saturation' (the spring's x clipped where 10-30 % of the linear response's
+    samples lie beyond), or a power law: 'Coulomb friction', 'quadratic drag', 'hardening cubic
+    stiffness'."""
     rng = np.random.default_rng(seed)
-    share = rng.uniform(0.4, 0.7) if "saturation" in effect else rng.uniform(0.1, 0.3)
-    u_max, x_max = 7.0 * 6 / np.sqrt(3), 2.2  # bound of the multisine; about the linear response's largest |x|
-    law = {"saturation": lambda x, v, u: -0.5 * v - 4.0 * x + clip(u, share * u_max),
-           "dead zone": lambda x, v, u: -0.5 * v - 4.0 * x + dead_zone(u, share * u_max),
-           "spring saturation": lambda x, v, u: -0.5 * v - 4.0 * clip(x, share * x_max) + u,
-           "Coulomb friction": lambda x, v, u: -0.5 * v - 4.0 * x - 1.5 * np.tanh(v / 1e-3) + u,  # sign(v), smoothed for the solver
-           "quadratic drag": lambda x, v, u: -0.5 * v - 4.0 * x - 0.4 * v * abs(v) + u,
-           "hardening cubic stiffness": lambda x, v, u: -0.5 * v - 4.0 * x - 1.0 * x**3 + u}[effect]
+    t = np.linspace(0.0, 40.0, SAMPLES)
+    inputs = [_multisine(rng, t, 7.0) for _ in range(2)]
+    share = rng.uniform(0.1, 0.3)
+    linear = lambda x, v, u: -0.5 * v - 4.0 * x + u
+    beyond = lambda values: float(np.quantile(np.abs(values), 1 - share))
+    threshold = {"saturation": beyond(inputs[0](t)), "dead zone": float(np.quantile(np.abs(inputs[0](t)), share)),
+                 "spring saturation": beyond(_oscillator_record(rng, inputs[0], lambda x, v, u: [v, linear(x, v, u)],
+                                                                0.0).x)}.get(effect)
+    law = {"saturation": lambda x, v, u: -0.5 * v - 4.0 * x + clip(u, threshold),
+           "dead zone": lambda x, v, u: -0.5 * v - 4.0 * x + dead_zone(u, threshold),
+           "spring saturation": lambda x, v, u: -0.5 * v - 4.0 * clip(x, threshold) + u,
+           "Coulomb friction": lambda x, v, u: linear(x, v, u) - 1.5 * np.tanh(v / 1e-3),  # sign(v), smoothed
+           "quadratic drag": lambda x, v, u: linear(x, v, u) - 0.4 * v * abs(v),
+           "hardening cubic stiffness": lambda x, v, u: linear(x, v, u) - 1.0 * x**3}[effect]
     rhs = lambda x, v, u: [v, law(x, v, u)]
-    threshold = {"saturation": share * u_max, "dead zone": share * u_max,
-                 "spring saturation": share * x_max}.get(effect)
     config = {"model": OSCILLATOR, "data": {"time": "t", "columns": {"x": "x", "u": "u"}}}
     name = "saturation" if effect == "spring saturation" else effect
-    return config, _oscillator_record(rng, rhs, noise), _oscillator_record(rng, rhs, noise), name, threshold
+    records = [_oscillator_record(rng, u, rhs, noise) for u in inputs]
+    return config, records[0], records[1], name, threshold
 
 
 def tank(seed: int, noise: float = 0.01):
     """A tank ``h' = q / A - k sqrt(h)`` that overflows above a level ``c`` (a weir,
-    ``- b max(0, h - c)^1.5``), ``c`` at 0.5-0.8 of the range the level takes without it."""
+    ``- b max(0, h - c)^1.5``), ``c`` where 10-30 % of the level's samples lie above it without it."""
     rng = np.random.default_rng(seed)
     area, k, b = 1.0, 0.2, 2.0
     t = np.linspace(0.0, 600.0, 3000)
@@ -72,7 +78,7 @@ def tank(seed: int, noise: float = 0.01):
         return solve_ivp(rhs, (0.0, 600.0), [0.64], t_eval=t, rtol=1e-9, atol=1e-9, max_step=1.0).y[0]
 
     free = level(inflows[0], np.inf, 0.0)
-    c = free.min() + rng.uniform(0.5, 0.8) * (free.max() - free.min())
+    c = float(np.quantile(free, 1 - rng.uniform(0.1, 0.3)))
 
     def record(q):
         h = level(q, c, b)

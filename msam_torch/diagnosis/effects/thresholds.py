@@ -111,7 +111,7 @@ class _Swap(ast.NodeTransformer):
     def __init__(self, signal: str, node: ast.AST):
         self.signal, self.node = signal, node
 
-    def visit_Name(self, name: ast.Name) -> ast.AST:  # noqa: N802 (ast's naming)
+    def visit_Name(self, name: ast.Name) -> ast.AST:
         return copy.deepcopy(self.node) if name.id == self.signal else name
 
 
