@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from msam_torch.config.schema import EffectConfig, load_config
+from msam_torch.config.schema import load_config
 from msam_torch.config.to_spec import to_spec
 from msam_torch.diagnosis import diagnose
-from msam_torch.diagnosis.catalogue.entries import Reading, bundled, threshold_entries
+from msam_torch.diagnosis.catalogue.entries import Reading, admitted, bundled, threshold_entries
 from msam_torch.diagnosis.effects.hypotheses import encode, enumerate_hypotheses, extended_equation
 from msam_torch.diagnosis.effects.thresholds import Threshold, switchable
 from tests.diagnosis.threshold_cases import OSCILLATOR, clip, dead_zone, oscillator, tank
@@ -52,10 +52,7 @@ def test_threshold_entries_read_their_quantities():
     assert [e.name for e in threshold_entries(bundled(), "hinge", level)] == ["overflow"]
     position = Reading("velocity", "position", "position", "x", 1.0)
     assert [e.name for e in threshold_entries(bundled(), "hinge", position)] == ["end stop"]
-    with pytest.raises(ValueError, match="an exponent is given for a power law or a hinge"):
-        EffectConfig(name="n", acts_on="any", term="any", depends_on="any", form="additive", exponent=1,
-                     threshold="clip", description="d", reference="r")
-
+    assert all(e.form in ("additive", "multiplicative") for e in admitted(bundled(), position))  # no threshold
 
 def _diagnosed(effect, seed):
     config, train, held, name, c = tank(seed) if effect == "overflow" else oscillator(seed, effect)

@@ -37,11 +37,10 @@ def markdown() -> str:
         domains.setdefault(entry.domain, []).append(entry)
     for domain, entries in domains.items():
         lines += ["", f"## {domain.replace('_', ' ').capitalize()}", "",
-                  "| name | acts on | term | depends on | threshold | total exponent | sign | description | reference |",
+                  "| name | acts on | term | depends on | form | total exponent | sign | description | reference |",
                   "|---|---|---|---|---|---|---|---|---|"]
-        lines += [f"| {e.name} | {_cell(e.acts_on)} | {_cell(e.term)} | {_cell(e.depends_on)} | {e.threshold or '—'} "
-                  f"| {'—' if e.exponent is None else _cell(e.exponent)} | {e.sign} | {_cell(e.description)} "
-                  f"| {_cell(e.reference)} |" for e in entries]
+        lines += [f"| {e.name} | {_cell(e.acts_on)} | {_cell(e.term)} | {_cell(e.depends_on)} | {e.form} "
+                  f"| {_cell(e.exponent)} | {e.sign} | {_cell(e.description)} | {_cell(e.reference)} |" for e in entries]
     return "\n".join(lines) + "\n"
 
 

@@ -29,7 +29,7 @@ def threshold_name(roles: catalogue.Roles, entries: tuple, equation: Equation, h
     read = reading(roles, equation, h)
     total = None if gamma is None else gamma + 1.0
     found = [e for e in catalogue.threshold_entries(entries, t.shape, read)
-             if total is None or catalogue.holds(e, total, half)] if ok else []
+             if total is None or catalogue.holds(e, total, half)] if ok else []  # a clip's exponent is 1
     held = t.half_width <= HELD * t.span
     entry = catalogue.sole(found) if held else None
     measured = f"{t.text()} ± {t.half_width:.3g}" + ("" if total is None else f", total exponent {total:.2f} ± {half:.2f}")
@@ -45,7 +45,7 @@ def threshold_name(roles: catalogue.Roles, entries: tuple, equation: Equation, h
     return (catalogue.NOT_CATALOGUED if entry is None else entry.name), {
         "effect": None if entry is None else entry.name, "text": text, "total_exponent": total,
         "half_width": half, "on": t.signal, "consistent": [e.name for e in found],
-        "catalogue_exponent": None if entry is None or entry.exponent is None else catalogue.catalogue_exponent(entry),
+        "catalogue_exponent": None if entry is None else catalogue.catalogue_exponent(entry),
         "domain": None if entry is None else entry.domain,
         "description": None if entry is None else entry.description,
         "reference": None if entry is None else entry.reference,
