@@ -47,9 +47,10 @@ def main(argv=None) -> None:
     print("| case | seeds | named right, threshold within 5 % | no threshold name | s per case |")
     print("|---|---|---|---|---|")
     for effect in args.effects:
-        rows = [case(effect, seed, args.noise) for seed in range(first, last + 1)]
-        for r in rows:
-            print(f"<!-- {r} -->", flush=True)
+        rows = []
+        for seed in range(first, last + 1):
+            rows.append(case(effect, seed, args.noise))
+            print(f"<!-- {rows[-1]} -->", flush=True)
         n = len(rows)
         seconds = sum(r["seconds"] for r in rows) / n
         if effect in THRESHOLD_EFFECTS:
