@@ -45,6 +45,7 @@ def _not_boolean(value):
 Number = Annotated[Union[float, int], BeforeValidator(_not_boolean), AfterValidator(_within_float64)]
 
 
+
 class ThetaRule(str, enum.Enum):
     """``adaptation.theta``: theta at its nominal value, or re-solved by linear least squares at
     every step (variable projection with Kaufman's Jacobian, design notes section 3). A member
@@ -94,8 +95,7 @@ def _known_quantity(name: str) -> str:
 
 
 Quantity = Annotated[str, AfterValidator(_known_quantity)]
-Quantities = Annotated[list[Annotated[str, AfterValidator(lambda v: v if v == "any" else _known_quantity(v))]],
-                       BeforeValidator(lambda v: [v] if isinstance(v, str) else v), Field(min_length=1)]  # or any
+Quantities = Annotated[list[Quantity], BeforeValidator(lambda v: [v] if isinstance(v, str) else v), Field(min_length=1)]
 
 
 class SignalQuantity(_Section):
@@ -117,15 +117,14 @@ class EffectConfig(_Section):
     name: str = Field(min_length=1, description="the name a verdict gives the effect")
     domain: str = Field("user", description="the domain it belongs to (bundled: the catalogue's group)")
     acts_on: Quantities = Field(description="quantity (or quantities) whose balance the effect enters: the state "
-                                            "whose derivative the equation gives, e.g. velocity for x_ddot; any: all")
-    term: Quantities = Field(description="quantity of the component M the power law multiplies (of s, for a threshold)")
-    depends_on: Quantities = Field(description="quantity of the signal s in |s|^gamma (crossing the threshold)")
-    form: Literal["additive", "multiplicative", "hinge", "clip", "dead zone"] = Field(
-        description="how a power law usually enters, beside its component or replacing it (informational), or a "
-                    "threshold c's shape: hinge, max(0, s - c)^exponent added; clip, s in [-c, c]; dead zone, 0 in |s| < c")
+                                            "whose derivative the equation gives, e.g. velocity for x_ddot")
+    term: Quantities = Field(description="quantity of the component M the power law multiplies")
+    depends_on: Quantities = Field(description="quantity of the signal s in |s|^gamma")
+    form: Literal["additive", "multiplicative"] = Field(
+        description="how the effect usually enters: beside its component, or replacing it (informational: the name "
+                    "follows the total exponent)")
     exponent: Union[Number, tuple[Number, Number]] = Field(
-        description="total exponent on the dependency (gamma plus the power of s in M), or a range [low, high]; "
-                    "a hinge's on max(0, s - c); 1 for a clip or a dead zone (the thresholded s replaces s in M)")
+        description="total exponent on the dependency (gamma plus the power of s in M), or a range [low, high]")
     sign: Literal["any", "same", "opposite"] = Field(
         "any", description="sign of the effect's theta relative to the starting component's")
     description: str = Field(min_length=1, description="one line of physics")

@@ -28,7 +28,6 @@ FUNCTIONS: dict[str, Callable] = {
     "sin": torch.sin,
     "cos": torch.cos,
     "tanh": torch.tanh,
-    "relu": torch.relu,  # max(0, x): thresholds (a hinge, a clip, a dead zone)
 }
 _BINARY = {
     ast.Add: lambda a, b: a + b,

@@ -283,7 +283,7 @@ def _sympy(expression: Expression):
     import sympy
 
     functions = {"abs": sympy.Abs, "sign": sympy.sign, "sqrt": sympy.sqrt, "exp": sympy.exp, "log": sympy.log,
-                 "sin": sympy.sin, "cos": sympy.cos, "tanh": sympy.tanh, "relu": lambda x: sympy.Max(0, x)}
+                 "sin": sympy.sin, "cos": sympy.cos, "tanh": sympy.tanh}
     binary = {ast.Add: lambda a, b: a + b, ast.Sub: lambda a, b: a - b, ast.Mult: lambda a, b: a * b,
               ast.Div: lambda a, b: a / b, ast.Pow: lambda a, b: a**b}
 

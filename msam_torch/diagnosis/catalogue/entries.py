@@ -26,7 +26,6 @@ from msam_torch.model.expressions import Expression
 from msam_torch.model.spec import Equation, ModelSpec, derivative_name, split_derivative
 
 NOT_CATALOGUED = "power law, no catalogued effect"
-POWER_LAWS = ("additive", "multiplicative")  # the forms of power-law entries (the others: threshold shapes)
 TOLERANCE = 0.2  # the catalogue's resolution: the least half-width of an exponent interval
 RATE_OF = {"position": "velocity", "velocity": "acceleration", "angle": "angular_velocity",
            "angular_velocity": "angular_acceleration", "charge": "current", "volume": "flow"}
@@ -109,7 +108,7 @@ class Roles:
         return {i: references for i, references in partners.items() if references}
 
     @classmethod
-    def of_equation(cls, spec: ModelSpec | None, equation: Equation) -> Roles:
+    def of_equation(cls, spec: ModelSpec | None, equation: Equation) -> "Roles":
         declared = dict(spec.quantities) if spec is not None else {}
         known = dict(declared)
         base, order = split_derivative(equation.target)
@@ -171,15 +170,9 @@ def consistent(catalogue: tuple[EffectConfig, ...], reading: Reading, total: flo
     if reading.power is not None and abs(total - reading.power) <= half_width:
         return []
     fits = [e for e in admitted(catalogue, reading) if signed(e, same_sign)]
-    return list({e.name: e for e in fits if holds(e, total, half_width)}.values())
-
-
-def holds(entry: EffectConfig, total: float, half_width: float) -> bool:
-    """Whether a total exponent ``total`` +- ``half_width`` fits ``entry``'s: a range holding
-    ``total`` itself, a single value inside the interval."""
-    if isinstance(entry.exponent, tuple):
-        return entry.exponent[0] <= total <= entry.exponent[1]
-    return abs(entry.exponent - total) <= half_width
+    inside = lambda e: (e.exponent[0] <= total <= e.exponent[1] if isinstance(e.exponent, tuple)
+                        else abs(e.exponent - total) <= half_width)
+    return list({e.name: e for e in fits if inside(e)}.values())
 
 
 def admitted(catalogue: tuple[EffectConfig, ...], reading: Reading) -> list[EffectConfig]:
@@ -190,20 +183,10 @@ def admitted(catalogue: tuple[EffectConfig, ...], reading: Reading) -> list[Effe
         return []
     if reading.term == reading.depends_on and reading.power != 1.0:
         return []
-    fits = [e for e in catalogue if e.form in POWER_LAWS and reading.acts_on in e.acts_on and reading.term in e.term
+    fits = [e for e in catalogue if reading.acts_on in e.acts_on and reading.term in e.term
             and reading.depends_on in e.depends_on]
     own = [e for e in fits if e not in bundled()]
     return [e for e in fits if e in own or not any((e.exponent, e.sign) == (o.exponent, o.sign) for o in own)]
-
-
-def threshold_entries(catalogue: tuple[EffectConfig, ...], shape: str, reading: Reading) -> list[EffectConfig]:
-    """The threshold entries of ``shape`` whose quantities fit ``reading`` (``any`` fits every
-    quantity, an undeclared one too); a config's own shadows a bundled one of the same shape and law."""
-    fit = lambda have, wanted: "any" in wanted or (have is not None and have in wanted)
-    fits = [e for e in catalogue if e.form == shape and fit(reading.acts_on, e.acts_on)
-            and fit(reading.term, e.term) and fit(reading.depends_on, e.depends_on)]
-    own = [e for e in fits if e not in bundled()]
-    return [e for e in fits if e in own or not any(e.exponent == o.exponent for o in own)]
 
 
 def signed(entry: EffectConfig, same_sign: bool) -> bool:

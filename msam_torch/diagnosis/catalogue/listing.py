@@ -37,10 +37,10 @@ def markdown() -> str:
         domains.setdefault(entry.domain, []).append(entry)
     for domain, entries in domains.items():
         lines += ["", f"## {domain.replace('_', ' ').capitalize()}", "",
-                  "| name | acts on | term | depends on | form | total exponent | sign | description | reference |",
-                  "|---|---|---|---|---|---|---|---|---|"]
-        lines += [f"| {e.name} | {_cell(e.acts_on)} | {_cell(e.term)} | {_cell(e.depends_on)} | {e.form} "
-                  f"| {_cell(e.exponent)} | {e.sign} | {_cell(e.description)} | {_cell(e.reference)} |" for e in entries]
+                  "| name | acts on | term | depends on | total exponent | sign | description | reference |",
+                  "|---|---|---|---|---|---|---|---|"]
+        lines += [f"| {e.name} | {_cell(e.acts_on)} | {_cell(e.term)} | {_cell(e.depends_on)} | {_cell(e.exponent)} "
+                  f"| {e.sign} | {_cell(e.description)} | {_cell(e.reference)} |" for e in entries]
     return "\n".join(lines) + "\n"
 
 

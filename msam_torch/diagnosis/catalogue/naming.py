@@ -25,10 +25,9 @@ from dataclasses import dataclass
 import torch
 
 from msam_torch.diagnosis.catalogue import entries as catalogue
-from msam_torch.diagnosis.catalogue.threshold_names import threshold_name
 from msam_torch.diagnosis.compare.verdict import Verdict
 from msam_torch.diagnosis.effects.bootstrap import Bootstrap
-from msam_torch.diagnosis.effects.hypotheses import Fitted, Hypothesis, sane, slot
+from msam_torch.diagnosis.effects.hypotheses import EXPONENTLESS, Fitted, Hypothesis, sane, slot
 from msam_torch.model.spec import Equation, ModelSpec
 
 STABLE_HALF_WIDTH = 1.0  # an exponent known no better than +-1 is not an effect
@@ -103,13 +102,6 @@ def name_hypotheses(spec: ModelSpec, equation: Equation, hypotheses: list[Hypoth
             names.append(OFFSET), admissible.append(True), details.append(_offset_details(roles)), loose.append(False)
             continue
         s = slot(equation, h)
-        if h.threshold is not None:  # a hinge's exponent is held as a power law's
-            gamma = float(original.gamma[0, c, s]) if h.has_exponent else None
-            half = half_width(boot, c, s, gamma) if h.has_exponent else None
-            ok = bool(is_sane[c]) and not bool(original.invalid[0, c]) and (half is None or half <= STABLE_HALF_WIDTH)
-            name, detail = threshold_name(roles, entries, equation, h, gamma, half, ok)
-            names.append(name), admissible.append(ok), details.append(detail), loose.append(False)
-            continue
         reading = catalogue.read(roles, equation, h.component, h.function)
         gamma = float(original.gamma[0, c, s])
         total = gamma + (reading.power or 0.0)
@@ -181,7 +173,7 @@ def repeated(hypotheses: list[Hypothesis], named: Naming, rmse: torch.Tensor) ->
     out = torch.zeros(len(hypotheses), dtype=torch.bool, device=rmse.device)
     forms: dict[tuple, list[int]] = {}
     for c, h in enumerate(hypotheses):
-        if h.has_exponent and bool(named.admissible[c]) and bool(torch.isfinite(rmse[c])):
+        if h.kind not in EXPONENTLESS and bool(named.admissible[c]) and bool(torch.isfinite(rmse[c])):
             forms.setdefault(h.form, []).append(c)
     for starts in forms.values():
         best = min(starts, key=lambda c: float(rmse[c]))
@@ -203,11 +195,11 @@ class Pinned:
 
 
 def pinned(spec: ModelSpec, equation: Equation, hypotheses: list[Hypothesis]) -> list[Pinned]:
-    """Every power-law hypothesis (one per kind, component and function) at the exponent of each
+    """Every effect hypothesis (one per kind, component and function) at the exponent of each
     single-valued catalogue entry its quantities admit, other than the component's own law."""
     roles, entries, seen, out = catalogue.Roles.of_equation(spec, equation), catalogue.entries(spec), set(), []
     for c, h in enumerate(hypotheses):
-        if not h.has_exponent or h.threshold is not None or h.form in seen:
+        if h.kind in EXPONENTLESS or h.form in seen:
             continue
         seen.add(h.form)
         reading = catalogue.read(roles, equation, h.component, h.function)

@@ -31,12 +31,10 @@ def power_term(term: str, function, gamma: float, scale: float) -> str:
 
 def adapted_components(equation: Equation, model: EquationModel) -> list[dict]:
     """The components (config form) of the adapted row of ``model`` (its equation is the extended
-    form of ``equation``: the starting components, then a copy of every adjustable one and the
-    threshold terms; the choices index the extended adjustments, ``equation``'s and the threshold
-    hinges' functions followed by the constants 1 and 0). A component that a threshold
-    hypothesis switched off is left out, its thresholded form added."""
+    form of ``equation``: the starting components, then a copy of every adjustable one; the copies'
+    and the adjustments' choices index ``equation.adjustments`` followed by the constants 1 and 0)."""
     extended = model.equation
-    n_f = len(extended.adjustments) - 2
+    n_f = len(equation.adjustments)
     original = len(equation.components)
     choice, gamma = model.choice[ADAPTED].tolist(), model.gamma[ADAPTED].tolist()
     theta, theta_fixed = model.theta[ADAPTED], model.theta_fixed[ADAPTED].tolist()
@@ -54,7 +52,7 @@ def adapted_components(equation: Equation, model: EquationModel) -> list[dict]:
             continue
         value = float(theta[k]) if f == n_f else float(theta[k] * model.scale[f] ** (-gamma[k]))
         if f < n_f:
-            term = power_term(term, extended.adjustments[f], gamma[k], float(model.scale[f]))
+            term = power_term(term, equation.adjustments[f], gamma[k], float(model.scale[f]))
         entry = {"term": term, "theta": value}
         if i >= original:  # an additive copy: a component of its own, its law found
             added.append({**entry, "adjustable": False})

@@ -21,10 +21,7 @@ constant functions, ``1`` (component left as it is) and ``0`` (copy switched off
 - ``offset``: the starting model plus a fitted constant (a sensor or actuator offset, a constant
   load), in an equation that holds no constant component and whose signals all take both signs
   (:func:`offset_testable`): measured records often carry an offset, and a power law fitted without
-  it bends to mimic it (docs/diagnose.md);
-- ``threshold``: a component changed only beyond a threshold of a signal, at the value profiled for
-  it (:mod:`.thresholds`): a hinge term of its own (with an exponent), or a clip or dead zone of a
-  component's signal (the component switched off, its thresholded form switched on).
+  it bends to mimic it (docs/diagnose.md).
 
 The fit is variable projection (theta re-solved every step) with damped Gauss-Newton steps on
 gamma, taken by :func:`msam_torch.engine.step.step` on all trials and hypotheses at once.
@@ -35,7 +32,6 @@ from dataclasses import dataclass, replace
 
 import torch
 
-from msam_torch.diagnosis.effects.thresholds import Threshold, hinge_function, names
 from msam_torch.diagnosis.stages.rows import WeakForm
 from msam_torch.engine.candidates import EquationData, Selection, columns, predict
 from msam_torch.engine.step import evaluate, step
@@ -56,35 +52,23 @@ MINORITY_SIGN = 0.1  # share of the samples a signal must hold on either side of
 class Hypothesis:
     """One candidate explanation: ``kind``, the component (index in the equation), the function."""
 
-    kind: str  # 'retuned', 'multiplicative', 'additive', 'exchange', 'offset' or 'threshold'
+    kind: str  # 'retuned', 'multiplicative', 'additive', 'exchange' or 'offset'
     component: int | None = None
     function: int | None = None
     start: float = 0.0
     references: tuple[str, ...] = ()  # an exchange's references (signals its component exchanges with)
-    threshold: Threshold | None = None  # a threshold hypothesis's form and value
-    term: int | None = None  # ... and the index of its term among the extended equation's threshold terms
 
     @property
     def form(self) -> tuple:
         """(kind, component, function): the starts of one form are the same hypothesis fitted from
         different exponents."""
-        return (self.kind, self.component, self.function) + (() if self.threshold is None else self.threshold.form)
-
-    @property
-    def has_exponent(self) -> bool:
-        """Whether the hypothesis fits an exponent of its own (a clip or dead zone does not)."""
-        return self.kind not in EXPONENTLESS and (self.threshold is None or not self.threshold.replaces)
+        return self.kind, self.component, self.function
 
     def label(self, equation: Equation) -> str:
         if self.kind == "retuned":
             return "starting model, theta re-fitted"
         if self.kind == "offset":
             return "starting model + constant"
-        if self.threshold is not None:
-            t, term = self.threshold, self.threshold.term(equation)
-            if t.replaces:
-                return f"{format_component(equation, self.component, None, None)} -> {term} ({t.text()})"
-            return f"+ {term}*abs({term})^gamma ({t.text()})"
         term = format_component(equation, self.component, None, None)
         f = equation.adjustments[self.function].text
         if self.kind == "multiplicative":
@@ -100,19 +84,11 @@ def references(hypotheses: list[Hypothesis]) -> tuple[str, ...] | None:
     return tuple(sorted({r for h in exchanges for r in h.references})) if exchanges else None
 
 
-def thresholds(hypotheses: list[Hypothesis]) -> list[Threshold]:
-    """The threshold hypotheses' forms, in the order of their terms."""
-    return [h.threshold for h in hypotheses if h.threshold is not None]
-
-
-def extended_equation(equation: Equation, references: tuple[str, ...] | None = None,
-                      terms: list[Threshold] = ()) -> Equation:
-    """Starting components + a copy of every adjustable one + the threshold ``terms``
-    (:func:`thresholds`) + the constant ``1`` (+, for exchange hypotheses with ``references``
-    (:func:`references`), the square of each reference); F + the constants 1 and 0."""
+def extended_equation(equation: Equation, references: tuple[str, ...] | None = None) -> Equation:
+    """Starting components + a copy of every adjustable one + the constant ``1`` (+, for exchange
+    hypotheses with ``references`` (:func:`references`), the square of each reference); F + the
+    constants 1 and 0."""
     copies = tuple(replace(equation.components[i], adjustable=True) for i in equation.adjustable)
-    copies += tuple(Component(term=t.expression(equation, equation.signals | names(terms)),
-                              theta=parse("0", "diagnose", set())) for t in terms)
     constants = (parse("1", "diagnose", set()), parse("0", "diagnose", set()))
     constant_terms = (Component(term=constants[0], theta=constants[1]),) + tuple(
         Component(term=parse(f"{r}^2", "diagnose", {r}), theta=constants[1]) for r in references or ())
@@ -140,20 +116,17 @@ def holds_constant(equation: Equation) -> bool:
 
 
 def enumerate_hypotheses(equation: Equation, exchanging: dict[int, tuple[str, ...]] | None = None,
-                         starts=ADDITIVE_STARTS, offset: bool = False, terms: list[Threshold] = ()) -> list[Hypothesis]:
-    """Every hypothesis of ``equation`` (each component with the functions it allows); ``exchanging``:
-    the components with exchange references
+                         starts=ADDITIVE_STARTS, offset: bool = False) -> list[Hypothesis]:
+    """Every hypothesis of ``equation``; ``exchanging``: the components with exchange references
     (:meth:`~msam_torch.diagnosis.catalogue.entries.Roles.exchanging`), each also tried as an exchange law of its own signal;
-    ``offset``: the offset too (:func:`offset_testable`); ``terms``: the threshold hypotheses
-    (:func:`~.thresholds.switchable` prepared ``equation`` for them)."""
+    ``offset``: the offset too (:func:`offset_testable`)."""
     found = [Hypothesis("retuned")]
     for i in equation.adjustable:
-        for f in equation.allowed(i):
+        for f in range(len(equation.adjustments)):
             found.append(Hypothesis("multiplicative", i, f))
     for i in equation.adjustable:
-        for f in equation.allowed(i):
+        for f in range(len(equation.adjustments)):
             found.extend(Hypothesis("additive", i, f, s) for s in starts)
-    found += threshold_hypotheses(equation, terms)
     for i, partners in (exchanging or {}).items():
         for f, a in enumerate(equation.adjustments):
             if a.is_magnitude and a.inner_text == equation.components[i].term.text:
@@ -161,21 +134,14 @@ def enumerate_hypotheses(equation: Equation, exchanging: dict[int, tuple[str, ..
     return found + ([Hypothesis("offset")] if offset else [])
 
 
-def threshold_hypotheses(equation: Equation, terms: list[Threshold]) -> list[Hypothesis]:
-    """One hypothesis per threshold term (``equation`` prepared by :func:`~.thresholds.switchable`)."""
-    return [Hypothesis("threshold", t.component, hinge_function(equation, t), threshold=t, term=k)
-            for k, t in enumerate(terms)]
-
-
 def encode(equation: Equation, hypotheses: list[Hypothesis], device=None):
-    """Choices (C, 2Q + K + 1 [+ R]) into the extended adjustment set, and starting exponents: the
-    slots of the components, of their copies, of the K threshold terms, of the constant and, with
-    exchange hypotheses, of the R references' squares (:func:`extended_equation`)."""
-    q, n_f, k = len(equation.adjustable), len(equation.adjustments), len(thresholds(hypotheses))
+    """Choices (C, 2Q + 1 [+ R]) into the extended adjustment set, and starting exponents: the slots
+    of the components, of their copies, of the constant and, with exchange hypotheses, of the R
+    references' squares (:func:`extended_equation`)."""
+    q, n_f = len(equation.adjustable), len(equation.adjustments)
     one, zero = n_f, n_f + 1
     shared = references(hypotheses)
-    constant = 2 * q + k
-    width = constant + 1 + (0 if shared is None else len(shared))
+    width = 2 * q + 1 + (0 if shared is None else len(shared))
     choices = torch.full((len(hypotheses), width), zero, dtype=torch.long)
     choices[:, :q] = one
     starts = torch.zeros(len(hypotheses), width, dtype=torch.float64)
@@ -186,15 +152,11 @@ def encode(equation: Equation, hypotheses: list[Hypothesis], device=None):
         elif h.kind in COPIES:
             choices[c, q + slot[h.component]] = h.function
             starts[c, q + slot[h.component]] = h.start
-        elif h.threshold is not None:
-            choices[c, 2 * q + h.term] = one if h.threshold.replaces else h.function
-            if h.threshold.replaces:
-                choices[c, slot[h.component]] = zero
         if h.kind in ("exchange", "offset"):
-            choices[c, constant] = one
+            choices[c, 2 * q] = one
         if h.kind == "exchange":
             for r in h.references:
-                choices[c, constant + 1 + shared.index(r)] = one
+                choices[c, 2 * q + 1 + shared.index(r)] = one
     return choices.to(device), starts.to(device)
 
 
@@ -275,17 +237,14 @@ def heldout_rmse(errors: torch.Tensor, fitted: Fitted) -> torch.Tensor:
 
 
 def slot(equation: Equation, h: Hypothesis) -> int:
-    """The exponent slot of hypothesis ``h`` among the extended equation's adjustable slots."""
+    """The exponent slot of hypothesis ``h`` among the extended equation's 2Q adjustable slots."""
     q = len(equation.adjustable)
-    if h.threshold is not None:
-        return 2 * q + h.term
     return equation.adjustable.index(h.component) + (q if h.kind in COPIES else 0)
 
 
 def exponent(h: Hypothesis, equation: Equation, gamma: torch.Tensor) -> float | None:
-    """The fitted exponent of an effect hypothesis (None for the re-fitted start, the offset, a clip
-    and a dead zone)."""
-    return float(gamma[slot(equation, h)]) if h.has_exponent else None
+    """The fitted exponent of an effect hypothesis (None for the re-fitted start and the offset)."""
+    return None if h.kind in EXPONENTLESS else float(gamma[slot(equation, h)])
 
 
 def data_theta(fitted: Fitted, c: int, choices: torch.Tensor, scale: torch.Tensor, trial: int = 0) -> torch.Tensor:

@@ -17,8 +17,6 @@ from msam_torch.diagnosis.compare.comparison import models
 from msam_torch.diagnosis.compare.intervals import term_intervals
 from msam_torch.diagnosis.compare.verdict import Verdict, equation_verdict
 from msam_torch.diagnosis.effects.bootstrap import bootstrap
-from msam_torch.diagnosis.effects.profile import profile
-from msam_torch.diagnosis.effects.thresholds import forms, switchable
 from msam_torch.diagnosis.effects.hypotheses import (
     COPIES,
     Fitted,
@@ -64,25 +62,19 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
                       parameters: dict, options: DiagnoseOptions, generator: torch.Generator) -> EquationDiagnosis:
     """The stages of the diagnosis of ``equation`` (module docstring) on the signals and
     half-width of ``estimation``; ``generator`` draws the bootstrap trials."""
-    # every hypothesis (exchange laws where a signal exchanges with one of its own quantity; thresholds
-    # on the signals of the rules where the starting model fails, each profiled on its grid)
+    # every hypothesis (exchange laws where a signal exchanges with one of its own quantity)
     nominal = spec.theta(equation, parameters)
     exchanging = catalogue.Roles.of_equation(spec, equation).exchanging(equation, nominal)
-    offset = offset_testable(equation, estimation.train)
-    step_options = StepOptions(scaling="gauss_newton", step_size="one", theta="varpro", damping=options.damping)
-    where = starting_where(equation, estimation.train, estimation.held_out)
-    terms = profile(equation, forms(equation, where["summary"], estimation.train), estimation, options, step_options,
-                    generator)
-    equation = switchable(equation, terms)
-    hypotheses = enumerate_hypotheses(equation, exchanging, offset=offset, terms=terms)
-    # weak-form rows of the equation extended by a copy of every adjustable component and the threshold terms
-    extended = extended_equation(equation, references(hypotheses), terms)
+    hypotheses = enumerate_hypotheses(equation, exchanging, offset=offset_testable(equation, estimation.train))
+    # weak-form rows of the equation extended by a copy of every adjustable component
+    extended = extended_equation(equation, references(hypotheses))
     weak = WeakForm.build(extended, estimation.train, estimation.held_out, estimation.half_width, options.blocks)
     t = weak.signals["t"]
     nominal = nominal.to(t)
     # every hypothesis fitted at once, scored on the held-out rows
     choices, starts = encode(equation, hypotheses, t.device)
     q = len(equation.adjustable)
+    step_options = StepOptions(scaling="gauss_newton", step_size="one", theta="varpro", damping=options.damping)
     original = fit(weak.data, choices, starts, step_options, options.steps, q)
     errors = heldout_errors(weak.val_data, weak.val_rows, choices, original)  # (1, C, M')
     rmse, errors = heldout_rmse(errors, original)[0], errors[0]  # (C,), (C, M')
@@ -132,6 +124,7 @@ def diagnose_equation(spec: ModelSpec, equation: Equation, train: Dataset, estim
                              options.check_level, options.max_residual_structure, options.absolute,
                              options.relative, estimation.reach,
                              noise * float(torch.linalg.vector_norm(weak.val_tests.kernels[order])))
+    where = starting_where(equation, weak.signals, None if weak.val_signals is weak.signals else weak.val_signals)
     kind, reasons = equation_verdict(is_significant, outcome, sure, structure, checks, options,
                                      _loose(equation, hypotheses, named, rmse, best if is_significant else 0, target_rms,
                                             options),
