@@ -67,10 +67,10 @@ def _varies(values: torch.Tensor, what: str, source: str, derived: bool = False)
     if _constant(values):
         raise Uninformative(f"{source}: {what} is constant up to rounding: the record tells nothing for it (the "
                             "fitness correlation, Eq. 19, needs it to vary)")
-    spread, size = float(values.max() - values.min()), float(values.abs().max())
-    if derived and spread <= torch.finfo(values.dtype).eps ** 0.5 * size:
+    spread = _relative_spread(values)
+    if derived and spread <= torch.finfo(values.dtype).eps ** 0.5:
         raise Uninformative(f"{source}: {what}, estimated from the data, is constant to within the precision of the "
-                            f"estimate (it varies by {spread / size:.2g} of its size; a derivative estimated from "
+                            f"estimate (it varies by {spread:.2g} of its size; a derivative estimated from "
                             "samples keeps at most half the digits): the record tells nothing about which terms "
                             "the model misses")
 
@@ -94,7 +94,12 @@ def _magnitude_varies(function, signals: Mapping[str, torch.Tensor], like: torch
                         "data, so its exponent cannot be identified")
 
 
+def _relative_spread(values: torch.Tensor) -> float:
+    """(max - min) / max |value| (0 for values that are all 0)."""
+    size = float(values.abs().max())
+    return float(values.max() - values.min()) / size if size > 0 else 0.0
+
+
 def _constant(values: torch.Tensor) -> bool:
     """Constant up to rounding: the spread is within what summing the samples (N eps) leaves."""
-    spread, size = float(values.max() - values.min()), float(values.abs().max())
-    return spread <= values.shape[-1] * torch.finfo(values.dtype).eps * size
+    return _relative_spread(values) <= values.shape[-1] * torch.finfo(values.dtype).eps
